@@ -1,0 +1,25 @@
+# CAPE: control algorithm performance evaluation under learned vehicle dynamics models.
+#
+#   snakemake --cores 2            the whole study
+#   snakemake --cores 2 TARGET     one output and only what it needs
+#
+# Rules live in workflow/rules/, split by stage; helpers in workflow/rules/common.smk.
+
+from snakemake.utils import min_version
+
+min_version("9.0")
+
+
+configfile: "config/config.yaml"
+
+
+include: "workflow/rules/common.smk"
+include: "workflow/rules/tracks.smk"
+include: "workflow/rules/data.smk"
+include: "workflow/rules/figures.smk"
+
+
+rule all:
+    input:
+        all_targets(),
+    default_target: True

@@ -1,0 +1,116 @@
+"""Loading and checking the study configuration.
+
+``config/config.yaml`` is the one place the study's numbers live. Snakemake validates it
+against ``workflow/schemas/config.schema.yaml`` at start-up; the ``cape`` command does the
+same when run by hand. Rules hand each command only the sections it needs (as JSON), so a
+change in one section reruns only the jobs that read it.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from cape.errors import CapeError
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
+DEFAULT_CONFIG = Path("config") / "config.yaml"
+
+
+def _fill_defaults(instance: Any, schema: dict[str, Any]) -> None:
+    """Insert the schema's ``default`` values for missing object keys, recursively."""
+    if not isinstance(instance, dict):
+        return
+    for key, sub in schema.get("properties", {}).items():
+        if key not in instance and "default" in sub:
+            instance[key] = sub["default"]
+        if key in instance:
+            _fill_defaults(instance[key], sub)
+    extra = schema.get("additionalProperties")
+    if isinstance(extra, dict):
+        for key, value in instance.items():
+            if key not in schema.get("properties", {}):
+                _fill_defaults(value, extra)
+
+
+def check_consistency(config: dict[str, Any], source: str = "config") -> None:
+    """Cross-field rules a JSON schema cannot express; raise ``CapeError`` naming the field."""
+    catalogue = config["tracks"]["catalogue"]
+    data = config["data"]
+    for name in data["tracks"]:
+        if name not in catalogue:
+            raise CapeError(
+                f"{source}: field `data.tracks.{name}` names a track missing from "
+                f"`tracks.catalogue` ({sorted(catalogue)}); add it there or remove it here."
+            )
+    for key in ("train_track", "test_track"):
+        if data[key] not in data["tracks"]:
+            raise CapeError(
+                f"{source}: field `data.{key}` is {data[key]!r}, which is not one of "
+                f"`data.tracks` ({sorted(data['tracks'])}); choose one of those."
+            )
+
+
+def validate_config(config: dict[str, Any], source: str = "config") -> dict[str, Any]:
+    """Validate ``config`` against the schema (filling defaults) and the cross-field rules."""
+    import jsonschema
+
+    schema = yaml.safe_load(SCHEMA_PATH.read_text())
+    _fill_defaults(config, schema)
+    validator = jsonschema.Draft202012Validator(schema)
+    errors = sorted(validator.iter_errors(config), key=lambda e: list(e.absolute_path))
+    if errors:
+        first = errors[0]
+        field = ".".join(str(p) for p in first.absolute_path) or "(top level)"
+        more = f" (and {len(errors) - 1} more problem(s))" if len(errors) > 1 else ""
+        raise CapeError(
+            f"{source}: field `{field}`: {first.message}{more}. "
+            f"Fix the value; {SCHEMA_PATH.relative_to(REPO_ROOT)} describes every key."
+        )
+    check_consistency(config, source)
+    return config
+
+
+def load_config(path: str | Path = DEFAULT_CONFIG) -> dict[str, Any]:
+    """Read and validate a YAML config file (the default one also when run outside the repo)."""
+    path = Path(path)
+    if path == DEFAULT_CONFIG and not path.is_file():
+        path = REPO_ROOT / DEFAULT_CONFIG
+    if not path.is_file():
+        raise CapeError(
+            f"config file {path} not found; run from the repository root or pass --config PATH."
+        )
+    try:
+        config = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise CapeError(f"{path}: not valid YAML ({exc})") from exc
+    if not isinstance(config, dict):
+        raise CapeError(f"{path}: the top level must be a mapping of sections")
+    return validate_config(config, str(path))
+
+
+def config_from_args(config_path: str | None, config_json: str | None) -> dict[str, Any]:
+    """The config a command works with: the sections a rule passed as JSON, else the file."""
+    if config_json:
+        try:
+            sections = json.loads(config_json)
+        except json.JSONDecodeError as exc:
+            raise CapeError(f"--config-json is not valid JSON ({exc})") from exc
+        if not isinstance(sections, dict):
+            raise CapeError("--config-json must be a JSON object of config sections")
+        return sections
+    return load_config(config_path or DEFAULT_CONFIG)
+
+
+def section(config: dict[str, Any], name: str) -> Any:
+    """``config[name]``, or a clear error saying which section a command needs."""
+    try:
+        return config[name]
+    except KeyError:
+        raise CapeError(
+            f"the configuration lacks the `{name}` section this command needs"
+        ) from None

@@ -1,0 +1,123 @@
+"""Geometry of a closed planar path: arc length, projection, heading and curvature (SPEC §2).
+
+A path is a closed polyline: the segment from the last point back to the first belongs to it.
+Projection works on the polyline (exact and cheap); heading, curvature and positions at an
+arbitrary arc length come from a periodic cubic spline through the same points, so they are
+smooth where a controller needs derivatives.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+
+
+@dataclass(frozen=True)
+class Projection:
+    """Where a point lies relative to a path.
+
+    ``s`` is the arc length of the nearest path point (in [0, length)), ``offset`` the signed
+    distance to it (positive to the left of the direction of travel), ``segment`` the index of
+    the segment it lies on (segment i runs from point i to point i+1, the last one closes the
+    loop), ``x``/``y`` the nearest point itself.
+    """
+
+    s: float
+    offset: float
+    segment: int
+    x: float
+    y: float
+
+
+class ClosedPath:
+    """A closed curve through points ``(x[i], y[i])``, parameterised by arc length."""
+
+    def __init__(self, x: np.ndarray, y: np.ndarray) -> None:
+        x = np.asarray(x, dtype=float)
+        y = np.asarray(y, dtype=float)
+        if x.ndim != 1 or x.shape != y.shape or x.size < 3:
+            raise ValueError(
+                f"a closed path needs matching 1-D x, y with ≥ 3 points, got {x.shape}, {y.shape}"
+            )
+        if x[0] == x[-1] and y[0] == y[-1]:
+            x, y = x[:-1], y[:-1]  # the loop closes itself; do not count a zero-length segment
+        self.x, self.y = x, y
+        self._x_next, self._y_next = np.roll(x, -1), np.roll(y, -1)
+        self._dx = self._x_next - x
+        self._dy = self._y_next - y
+        self._len2 = self._dx * self._dx + self._dy * self._dy
+        self.segment_lengths = np.hypot(self._dx, self._dy)
+        if np.any(self.segment_lengths == 0.0):
+            raise ValueError("a closed path must not repeat a point (zero-length segment)")
+        self.s_points = np.concatenate([[0.0], np.cumsum(self.segment_lengths)[:-1]])
+        self.length = float(self.segment_lengths.sum())
+        knots = np.append(self.s_points, self.length)
+        self._sx = CubicSpline(knots, np.append(x, x[0]), bc_type="periodic")
+        self._sy = CubicSpline(knots, np.append(y, y[0]), bc_type="periodic")
+
+    def __len__(self) -> int:
+        return self.x.size
+
+    def wrap(self, s: np.ndarray | float) -> np.ndarray | float:
+        """Arc length folded into [0, length)."""
+        return np.mod(s, self.length)
+
+    # --- projection -------------------------------------------------------------------
+    def _candidates(self, s_hint: float | None, window: float | None) -> np.ndarray:
+        n = len(self)
+        if s_hint is None or window is None or 2 * window >= self.length:
+            return np.arange(n)
+        # segments whose span [s_i, s_i + len_i] meets [s_hint − window, s_hint + window]
+        rel_start = np.mod(self.s_points - (s_hint - window), self.length)
+        rel_end = rel_start + self.segment_lengths
+        hit = (rel_start <= 2 * window) | (rel_end >= self.length)
+        return np.flatnonzero(hit)
+
+    def project(
+        self, px: float, py: float, s_hint: float | None = None, window: float | None = None
+    ) -> Projection:
+        """The nearest point of the path to ``(px, py)``.
+
+        With ``s_hint`` and ``window`` only segments within ``window`` of arc length around
+        ``s_hint`` are searched, so a path passing near itself (a hairpin) is not confused.
+        Ties go to the lowest segment index.
+        """
+        idx = self._candidates(s_hint, window)
+        ax, ay = self.x[idx], self.y[idx]
+        dx, dy, seg_len = self._dx[idx], self._dy[idx], self.segment_lengths[idx]
+        len2 = self._len2[idx]
+        bx, by = self._x_next[idx], self._y_next[idx]
+        t = np.clip(((px - ax) * dx + (py - ay) * dy) / len2, 0.0, 1.0)
+        # End points exactly (a + 1·(b − a) can miss b by an ulp), so that the two segments
+        # meeting at a vertex tie exactly and the lower index wins (SPEC §3, step 1).
+        qx = np.where(t <= 0.0, ax, np.where(t >= 1.0, bx, ax + t * dx))
+        qy = np.where(t <= 0.0, ay, np.where(t >= 1.0, by, ay + t * dy))
+        dist = np.hypot(px - qx, py - qy)
+        k = int(np.argmin(dist))
+        i = int(idx[k])
+        cross = dx[k] * (py - ay[k]) - dy[k] * (px - ax[k])
+        side = 1.0 if cross >= 0 else -1.0
+        s = float(self.wrap(self.s_points[i] + t[k] * seg_len[k]))
+        return Projection(
+            s=s, offset=side * float(dist[k]), segment=i, x=float(qx[k]), y=float(qy[k])
+        )
+
+    # --- smooth evaluation ------------------------------------------------------------------
+    def position(self, s: np.ndarray | float) -> np.ndarray:
+        """Points ``[x, y]`` at arc length ``s`` (wrapped), shape (2,) or (2, n)."""
+        s = self.wrap(np.asarray(s, dtype=float))
+        return np.stack([self._sx(s), self._sy(s)])
+
+    def heading(self, s: np.ndarray | float) -> np.ndarray:
+        """Tangent direction (rad) at arc length ``s``."""
+        s = self.wrap(np.asarray(s, dtype=float))
+        return np.arctan2(self._sy(s, 1), self._sx(s, 1))
+
+    def curvature(self, s: np.ndarray | float) -> np.ndarray:
+        """Signed curvature (1/m, positive when turning left) at arc length ``s``."""
+        s = self.wrap(np.asarray(s, dtype=float))
+        x1, y1 = self._sx(s, 1), self._sy(s, 1)
+        x2, y2 = self._sx(s, 2), self._sy(s, 2)
+        return (x1 * y2 - y1 * x2) / np.power(x1 * x1 + y1 * y1, 1.5)

@@ -1,0 +1,80 @@
+"""The ``cape`` command line: subcommands, outputs, and clear errors."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cape.cli import main
+
+
+def test_help_lists_subcommands() -> None:
+    out = subprocess.run(["cape", "--help"], capture_output=True, text=True, check=True).stdout
+    for command in ("tracks", "data", "plot-tracks"):
+        assert command in out
+
+
+def test_data_command_writes_the_published_set(
+    track_dir: Path, tmp_path: Path, config, datasets
+) -> None:
+    out = tmp_path / "DYN-PP-ETHZMobil.npz"
+    cfg = json.dumps({"tracks": config["tracks"], "data": config["data"]})
+    code = main(
+        [
+            "data",
+            "--track",
+            "ETHZMobil",
+            "--out",
+            str(out),
+            "--tracks-dir",
+            str(track_dir),
+            "--config-json",
+            cfg,
+        ]
+    )
+    assert code == 0
+    with np.load(out) as npz:
+        assert sorted(npz.files) == sorted(["time", "states", "dstates", "inputs", "vrefs"])
+        np.testing.assert_array_equal(npz["dstates"], datasets["ETHZMobil"]["dstates"])
+    assert [p.name for p in tmp_path.iterdir()] == [out.name]  # written atomically, no leftovers
+
+
+def test_unknown_track_is_a_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code = main(["data", "--track", "Monza", "--out", str(tmp_path / "x.npz")])
+    err = capsys.readouterr().err
+    assert code == 2 and "--track Monza" in err and "ETHZMobil" in err
+
+
+def test_missing_track_files_point_to_the_fix(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code = main(
+        ["data", "--track", "ETHZ", "--out", str(tmp_path / "x.npz"), "--tracks-dir", str(tmp_path)]
+    )
+    err = capsys.readouterr().err
+    assert code == 2 and "track file missing" in err and "snakemake" in err
+
+
+def test_plot_tracks(track_dir: Path, tmp_path: Path, datasets, config) -> None:
+    paths = {}
+    for track, data in datasets.items():
+        paths[track] = tmp_path / f"{track}.npz"
+        np.savez(paths[track], **data)
+    pdf, png = tmp_path / "fig.pdf", tmp_path / "fig.png"
+    args = ["plot-tracks", "--tracks-dir", str(track_dir), "--out", str(pdf), "--out", str(png)]
+    for track, path in paths.items():
+        args += ["--data", f"{track}={path}"]
+    assert main(args) == 0
+    assert pdf.read_bytes().startswith(b"%PDF") and png.read_bytes().startswith(b"\x89PNG")
+
+
+def test_module_entry_point() -> None:
+    out = subprocess.run(
+        [sys.executable, "-m", "cape.cli", "--version"], capture_output=True, text=True, check=True
+    )
+    assert out.stdout.startswith("cape ")

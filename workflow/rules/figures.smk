@@ -1,0 +1,20 @@
+# Figures built straight from the data (the study's figures come from notebooks later).
+
+
+rule figure_tracks:
+    input:
+        track_files(),
+        data=[dataset_path(t) for t in DATA_TRACKS],
+    output:
+        pdf="results/figures/tracks_and_data.pdf",
+        png="results/figures/tracks_and_data.png",
+    params:
+        data=" ".join(f"--data {t}={dataset_path(t)}" for t in DATA_TRACKS),
+        cfg=lambda wildcards: config_json("tracks", "data"),
+    conda:
+        CAPE_ENV
+    log:
+        "results/logs/figures/tracks_and_data.log",
+    shell:
+        "cape plot-tracks {params.data} --out {output.pdf} --out {output.png}"
+        " --config-json {params.cfg:q} > {log} 2>&1"
