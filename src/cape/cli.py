@@ -108,6 +108,234 @@ def cmd_plot_tracks(args: argparse.Namespace) -> None:
     print("wrote " + ", ".join(args.out))
 
 
+# --- cape train ----------------------------------------------------------------------------
+def _model_spec(config: dict[str, Any], name: str) -> dict[str, Any]:
+    from cape.config import section
+
+    models = section(config, "models")
+    if name not in models:
+        raise CapeError(
+            f"--model {name}: not in the config's `models` ({', '.join(sorted(models))})"
+        )
+    return models[name]
+
+
+def cmd_train(args: argparse.Namespace) -> None:
+    import hashlib
+
+    import numpy as np
+    import torch
+
+    from cape.config import section
+    from cape.io import write_text
+    from cape.models.checkpoint import save_model
+    from cape.models.training import TrainingData, train_model
+
+    config = _config(args)
+    spec = _model_spec(config, args.model)
+    data_cfg, train_cfg = section(config, "data"), section(config, "training")
+    seed = int(args.seed if args.seed is not None else train_cfg["seed"])
+    data_path = Path(args.data)
+    if not data_path.is_file():
+        raise CapeError(
+            f"--data {data_path}: not found; build it with `snakemake --cores 2 {data_path}`"
+        )
+    with np.load(data_path) as npz:
+        dataset = {k: npz[k] for k in npz.files}
+    split = data_cfg["split"]
+    data = TrainingData.from_dataset(
+        dataset, int(spec["history"]), float(split["train_fraction"]), int(split["seed"])
+    )
+    threads = int(args.threads or train_cfg["threads"])
+    print(
+        f"training {args.model}: {len(data.train)} training / {len(data.val)} validation "
+        f"windows, seed {seed}"
+    )
+    result = train_model(
+        args.model,
+        spec,
+        data,
+        ts=float(data_cfg["ts"]),
+        seed=seed,
+        epochs=args.epochs,
+        threads=threads,
+    )
+    out = Path(args.out)
+    meta = {
+        "seed": seed,
+        "epochs": len(result.losses),
+        "best_epoch": result.best_epoch,
+        "best_val_loss": result.best_val_loss,
+        "wall_seconds": result.wall_seconds,
+        "threads": threads,
+        "split": split,
+        "scaler": data.scaler.to_dict(),
+        "data_file": str(data_path),
+        "data_sha256": hashlib.sha256(data_path.read_bytes()).hexdigest(),
+        "torch_version": torch.__version__,
+    }
+    save_model(result.model, out, meta)
+    rows = ["epoch,train_loss,val_loss"] + [
+        f"{r['epoch']},{r['train_loss']:.17g},{r['val_loss']:.17g}" for r in result.losses
+    ]
+    write_text(out / "loss.csv", "\n".join(rows) + "\n")
+    print(
+        f"{args.model}: best validation MSE {result.best_val_loss:.4e} "
+        f"at epoch {result.best_epoch} "
+        f"of {len(result.losses)}; {result.wall_seconds:.1f} s; saved to {out}"
+    )
+
+
+# --- model evaluation ------------------------------------------------------------------------
+def _load_npz(path: str) -> dict[str, Any]:
+    import numpy as np
+
+    if not Path(path).is_file():
+        raise CapeError(f"{path}: not found; build it with `snakemake --cores 2 {path}`")
+    with np.load(path) as npz:
+        return {k: npz[k] for k in npz.files}
+
+
+def _load_models(items: list[str]) -> dict[str, Any]:
+    """``NAME=DIR`` pairs → trained models, in the order given."""
+    from cape.models.checkpoint import load_model
+
+    models = {}
+    for item in items:
+        name, sep, folder = item.partition("=")
+        if not sep:
+            raise CapeError(f"--model {item}: expected NAME=FOLDER, e.g. epm=results/models/epm")
+        models[name] = load_model(folder, expected_name=name)
+    return models
+
+
+def cmd_freeze(args: argparse.Namespace) -> None:
+    import json
+
+    from cape.config import section
+    from cape.io import write_text
+    from cape.models.evaluate import frozen_parameters
+    from cape.models.training import TrainingData
+
+    config = _config(args)
+    split = section(config, "data")["split"]
+    ((name, model),) = _load_models([args.model]).items()
+    data = TrainingData.from_dataset(
+        _load_npz(args.data), model.history, float(split["train_fraction"]), int(split["seed"])
+    )
+    frozen = frozen_parameters(model, data.train)
+    payload = {
+        "model": name,
+        "source": "median of Φ over the ETHZ training windows (SPEC §4.5)",
+        "phi": frozen,
+    }
+    write_text(args.out, json.dumps(payload, indent=2) + "\n")
+    print(f"wrote {args.out}: " + ", ".join(f"{k}={v:.4g}" for k, v in frozen.items()))
+
+
+def cmd_openloop(args: argparse.Namespace) -> None:
+    from cape.config import section
+    from cape.models.report import openloop_table
+    from cape.tables import write_table
+
+    config = _config(args)
+    horizon = int(section(config, "training").get("multistep_horizon", 15))
+    table = openloop_table(
+        _load_models(args.model),
+        _load_npz(args.train_data),
+        _load_npz(args.test_data),
+        section(config, "data")["split"],
+        horizon,
+    )
+    caption = (
+        "Open-loop error of the learned models: one-step RMSE on the ETHZ validation split and on "
+        f"ETHZMobil, mean absolute error after {horizon} open-loop steps on ETHZMobil, and the "
+        "paper's one-step RMSE (vx, vy in m/s, ω in rad/s)."
+    )
+    write_table(
+        table, args.out, formats={c: ".3e" for c in table.columns if c != "model"}, caption=caption
+    )
+    print(table.to_string(index=False))
+
+
+def cmd_complexity(args: argparse.Namespace) -> None:
+    import torch
+
+    from cape.config import section
+    from cape.data.windows import make_windows
+    from cape.models.report import complexity_table
+    from cape.tables import write_table
+
+    config = _config(args)
+    torch.set_num_threads(1)
+    models = _load_models(args.model)
+    data = _load_npz(args.data)
+    windows = {name: make_windows(data, m.history).features[100] for name, m in models.items()}
+    repeats = int(section(config, "training").get("inference_repeats", 2000))
+    table = complexity_table(models, windows, repeats)
+    formats = {"params_M": ".4f", "size_MB": ".2f", "flops_M": ".3f", "inference_ms": ".3f"}
+    formats.update({f"paper_{k}": v for k, v in formats.items()})
+    caption = (
+        "Model complexity and inference efficiency: parameters (millions), float32 size (MiB), "
+        "layers, FLOPs per prediction (millions, counted by PyTorch's flop counter) and the "
+        "median time of one single-window Φ prediction on the fast path (ms, this CPU, 1 thread)."
+    )
+    write_table(table, args.out, formats=formats, caption=caption)
+    print(table.to_string(index=False))
+
+
+def _colors_labels(
+    config: dict[str, Any], names: list[str]
+) -> tuple[dict[str, str], dict[str, str]]:
+    from cape.config import section
+
+    models = section(config, "models")
+    colors = {n: models.get(n, {}).get("color", f"C{i}") for i, n in enumerate(names)}
+    labels = {n: models.get(n, {}).get("label", n.upper()) for n in names}
+    return colors, labels
+
+
+def cmd_plot_models(args: argparse.Namespace) -> None:
+    import numpy as np
+    import pandas as pd
+
+    from cape.config import section
+    from cape.data.windows import make_windows
+    from cape.models.checkpoint import read_meta
+    from cape.models.evaluate import predict_phi
+    from cape.plots.models import plot_phi, plot_training_curves
+    from cape.plots.style import save_figure
+    from cape.vehicle.dynamics import drivetrain_force
+    from cape.vehicle.params import GROUND_TRUTH
+
+    config = _config(args)
+    ts = float(section(config, "data")["ts"])
+    models = _load_models(args.model)
+    colors, labels = _colors_labels(config, list(models))
+    data = _load_npz(args.data)
+    phis, time = {}, None
+    for name, model in models.items():
+        windows = make_windows(data, model.history)
+        phis[name] = (list(model.param_names), predict_phi(model, windows.features))
+    # align on the common time axis: the label step of each window
+    shortest = min(len(phi) for _, phi in phis.values())
+    aligned = {n: (pn, phi[-shortest:]) for n, (pn, phi) in phis.items()}
+    time = data["time"][-shortest:]
+    steps = np.arange(data["inputs"].shape[1])[-shortest - 1 : -1]
+    true_frx = drivetrain_force(
+        data["dstates"][3, steps], data["inputs"][0, steps], GROUND_TRUTH.as_dict()
+    )
+    save_figure(plot_phi(aligned, time, colors, labels, ts, true_frx), *args.phi_out)
+    losses = {}
+    best = {}
+    for item in args.model:
+        name, _, folder = item.partition("=")
+        losses[name] = pd.read_csv(Path(folder) / "loss.csv")
+        best[name] = int(read_meta(folder)["best_epoch"])
+    save_figure(plot_training_curves(losses, best, colors, labels), *args.curves_out)
+    print("wrote " + ", ".join([*args.phi_out, *args.curves_out]))
+
+
 def build_parser() -> argparse.ArgumentParser:
     from cape import __version__
 
@@ -159,6 +387,77 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_config_args(p)
     p.set_defaults(func=cmd_plot_tracks)
+
+    p = sub.add_parser("train", help="train a learned model on the ETHZ windows (SPEC §4)")
+    p.add_argument(
+        "--model", required=True, help="model name from the config's `models` (dpm, ddm, epm, ...)"
+    )
+    p.add_argument("--data", required=True, help="training data set (.npz)")
+    p.add_argument("--out", required=True, help="output folder for model.pt, meta.json, loss.csv")
+    p.add_argument("--epochs", type=int, help="override the config's epoch count (smoke runs)")
+    p.add_argument("--seed", type=int, help="override training.seed")
+    p.add_argument("--threads", type=int, help="override training.threads")
+    _add_config_args(p)
+    p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser(
+        "freeze",
+        help="median Φ over the training windows, for the fixed-parameter plants (SPEC §4.5)",
+    )
+    p.add_argument("--model", required=True, metavar="NAME=DIR", help="trained model")
+    p.add_argument("--data", required=True, help="training data set (.npz)")
+    p.add_argument("--out", required=True, help="output .json")
+    _add_config_args(p)
+    p.set_defaults(func=cmd_freeze)
+
+    p = sub.add_parser("openloop", help="open-loop error table of trained models (SPEC §4.4)")
+    p.add_argument(
+        "--model", action="append", required=True, metavar="NAME=DIR", help="trained model (repeat)"
+    )
+    p.add_argument(
+        "--train-data", required=True, help="ETHZ data set (.npz), for its validation split"
+    )
+    p.add_argument("--test-data", required=True, help="ETHZMobil data set (.npz)")
+    p.add_argument(
+        "--out", action="append", required=True, metavar="PATH", help=".csv, .md or .tex (repeat)"
+    )
+    _add_config_args(p)
+    p.set_defaults(func=cmd_openloop)
+
+    p = sub.add_parser("complexity", help="model complexity and inference time table (SPEC §4.4)")
+    p.add_argument(
+        "--model", action="append", required=True, metavar="NAME=DIR", help="trained model (repeat)"
+    )
+    p.add_argument("--data", required=True, help="data set whose windows are timed (.npz)")
+    p.add_argument(
+        "--out", action="append", required=True, metavar="PATH", help=".csv, .md or .tex (repeat)"
+    )
+    _add_config_args(p)
+    p.set_defaults(func=cmd_complexity)
+
+    p = sub.add_parser(
+        "plot-models", help="figures of predicted Φ against the truth, and of training"
+    )
+    p.add_argument(
+        "--model", action="append", required=True, metavar="NAME=DIR", help="trained model (repeat)"
+    )
+    p.add_argument("--data", required=True, help="ETHZMobil data set (.npz)")
+    p.add_argument(
+        "--phi-out",
+        action="append",
+        required=True,
+        metavar="PATH",
+        help="Φ figure (.pdf/.png, repeat)",
+    )
+    p.add_argument(
+        "--curves-out",
+        action="append",
+        required=True,
+        metavar="PATH",
+        help="training curves (repeat)",
+    )
+    _add_config_args(p)
+    p.set_defaults(func=cmd_plot_models)
     return parser
 
 

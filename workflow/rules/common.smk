@@ -1,6 +1,7 @@
 # Shared helpers: config validation and the names of files the rules produce.
 
 import json
+import os
 
 from snakemake.utils import validate
 
@@ -16,10 +17,12 @@ CAPE_ENV = "../envs/cape.yaml"
 
 TRACK_DIR = config["tracks"]["dir"]
 DATA_TRACKS = sorted(config["data"]["tracks"])
+MODELS = list(config["models"])
 
 
 wildcard_constraints:
     track="|".join(DATA_TRACKS),
+    model="|".join(MODELS),
 
 
 def track_files():
@@ -35,6 +38,38 @@ def config_json(*sections):
     return json.dumps({name: config[name] for name in sections}, sort_keys=True)
 
 
+PRESENTATION_KEYS = ("label", "color")
+
+
+def model_config_json(model):
+    """What training reads: the model's own entry (less its label and colour), the seed and
+    threads, the sampling time and the split. Nothing else, so that unrelated config edits
+    never retrain a model."""
+    spec = {k: v for k, v in config["models"][model].items() if k not in PRESENTATION_KEYS}
+    return json.dumps(
+        {
+            "models": {model: spec},
+            "training": {k: config["training"][k] for k in ("seed", "threads")},
+            "data": {k: config["data"][k] for k in ("ts", "split")},
+        },
+        sort_keys=True,
+    )
+
+
+def model_dir(model):
+    return f"results/models/{model}"
+
+
+def trained_models():
+    """Weights, metadata and loss curve of every configured model."""
+    return [f"{model_dir(m)}/{f}" for m in MODELS for f in ("model.pt", "meta.json", "loss.csv")]
+
+
+def model_args():
+    """``--model NAME=DIR`` for every configured model."""
+    return " ".join(f"--model {m}={model_dir(m)}" for m in MODELS)
+
+
 def dataset_path(track):
     return f"results/data/DYN-PP-{track}.npz"
 
@@ -44,4 +79,9 @@ def all_targets():
         *(dataset_path(t) for t in DATA_TRACKS),
         "results/figures/tracks_and_data.pdf",
         "results/figures/tracks_and_data.png",
+        *(f"{model_dir(m)}/frozen_phi.json" for m in MODELS),
+        "results/tables/openloop_rmse.csv",
+        "results/tables/model_complexity.csv",
+        "results/figures/model_phi_ethzmobil.pdf",
+        "results/figures/training_curves.pdf",
     ]

@@ -35,18 +35,24 @@ class WindowSet:
         return WindowSet(self.features[index], self.labels[index])
 
 
-def make_windows(dataset: dict[str, np.ndarray], history: int) -> WindowSet:
-    """All windows of length ``history`` of a ``DYN-PP`` set (1000 − H of them for 1000 steps)."""
+def feature_rows(dataset: dict[str, np.ndarray]) -> np.ndarray:
+    """Every row k = 0 … n_steps−1 of ``[vx, vy, ω, T_fb, δ_fb, ΔT, Δδ]``, shape (n_steps, 7)."""
     dstates, inputs = dataset["dstates"], dataset["inputs"]
     n_steps = inputs.shape[1]
+    previous = np.concatenate([np.zeros((2, 1)), inputs[:, :-1]], axis=1)
+    return np.concatenate([dstates[3:8, :n_steps], inputs - previous], axis=0).T
+
+
+def make_windows(dataset: dict[str, np.ndarray], history: int) -> WindowSet:
+    """All windows of length ``history`` of a ``DYN-PP`` set (1000 − H of them for 1000 steps)."""
+    rows = feature_rows(dataset)
+    n_steps = rows.shape[0]
     if not 1 <= history < n_steps:
         raise ValueError(f"history length H must be in 1 … {n_steps - 1}, got {history}")
-    previous = np.concatenate([np.zeros((2, 1)), inputs[:, :-1]], axis=1)
-    rows = np.concatenate([dstates[3:8, :n_steps], inputs - previous], axis=0).T  # (n_steps, 7)
     count = n_steps - history
     index = np.arange(count)[:, None] + np.arange(history)[None, :]
     features = rows[index]  # (count, H, 7)
-    labels = dstates[3:6, history : history + count].T.copy()
+    labels = dataset["dstates"][3:6, history : history + count].T.copy()
     return WindowSet(features=features, labels=labels)
 
 

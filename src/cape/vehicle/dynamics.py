@@ -15,6 +15,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from cape.vehicle.backend import ops_for
+from cape.vehicle.params import GRAVITY
 
 Params = Mapping[str, Any]
 
@@ -48,6 +49,23 @@ def drivetrain_force(vx: Any, throttle: Any, p: Params) -> Any:
     return (p["Cm1"] - p["Cm2"] * vx) * throttle - p["Cr0"] - p["Cr2"] * vx**2
 
 
+def axle_load_factors(frx: Any, height: Any, p: Params, ops: Any) -> tuple[Any, Any]:
+    """Dynamic load transfer (SPEC §4.3): ``Fz/Fz0`` of the front and rear axle.
+
+    ``a_x = Frx/m``; ``Fz_f = m·(g·lr − h·a_x)/(lf+lr)``, ``Fz_r = m·(g·lf + h·a_x)/(lf+lr)``,
+    each floored at 1 % of its static value, divided by the static loads. With h = 0 both
+    factors are exactly 1.
+    """
+    wheelbase = p["lf"] + p["lr"]
+    a_x = frx / p["m"]
+    # the same association as the dynamic loads, so that h = 0 gives factors of exactly 1
+    static_f = p["m"] * (GRAVITY * p["lr"]) / wheelbase
+    static_r = p["m"] * (GRAVITY * p["lf"]) / wheelbase
+    fz_f = ops.maximum(p["m"] * (GRAVITY * p["lr"] - height * a_x) / wheelbase, 0.01 * static_f)
+    fz_r = ops.maximum(p["m"] * (GRAVITY * p["lf"] + height * a_x) / wheelbase, 0.01 * static_r)
+    return fz_f / static_f, fz_r / static_r
+
+
 def velocity_derivatives(
     vx: Any,
     vy: Any,
@@ -56,15 +74,21 @@ def velocity_derivatives(
     delta: Any,
     p: Params,
     frx: Any = None,
+    cg_height: Any = None,
 ) -> tuple[Any, Any, Any]:
     """Body accelerations (v̇x, v̇y, ω̇).
 
     ``frx`` replaces the drivetrain law when a model predicts the longitudinal force itself
-    (the Deep Pacejka model); then ``throttle`` is not used.
+    (the Deep Pacejka model); then ``throttle`` is not used. ``cg_height`` (m) switches on
+    the Enhanced Physics Model's load-sensitive tyre forces (SPEC §4.3): both lateral forces,
+    offsets included, are scaled by their axle's ``Fz/Fz0``.
     """
-    ops = ops_for(vx, vy, omega, throttle, delta, frx, *p.values())
+    ops = ops_for(vx, vy, omega, throttle, delta, frx, cg_height, *p.values())
     f_fy, f_ry = tire_forces(vx, vy, omega, delta, p)
     f_rx = drivetrain_force(vx, throttle, p) if frx is None else frx
+    if cg_height is not None:
+        load_f, load_r = axle_load_factors(f_rx, cg_height, p, ops)
+        f_fy, f_ry = f_fy * load_f, f_ry * load_r
     sin_d, cos_d = ops.sin(delta), ops.cos(delta)
     dvx = (f_rx - f_fy * sin_d) / p["m"] + vy * omega
     dvy = (f_ry + f_fy * cos_d) / p["m"] - vx * omega

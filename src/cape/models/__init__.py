@@ -1,0 +1,5 @@
+"""Learned vehicle-dynamics models (SPEC §4): DPM, DDM, EPM behind one interface and a registry."""
+
+from cape.models.registry import model_class, register_model
+
+__all__ = ["model_class", "register_model"]

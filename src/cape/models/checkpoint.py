@@ -1,0 +1,111 @@
+"""Saving and loading trained models, with clear errors for corrupt or mismatched files.
+
+A model folder holds ``model.pt`` (the state dict: float32 network weights plus the feature
+scaler and guard bounds), ``meta.json`` (what was trained, on what, how), ``loss.csv`` and
+``frozen_phi.json`` (SPEC §4.5).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from cape.errors import CapeError
+from cape.io import write_bytes, write_text
+from cape.models.base import LearnedModel
+from cape.models.registry import model_class
+
+FORMAT_VERSION = 1
+
+
+def save_model(model: LearnedModel, folder: str | Path, meta: dict[str, Any]) -> None:
+    """Write ``model.pt`` and ``meta.json`` into ``folder`` (atomically, each)."""
+    folder = Path(folder)
+    buffer = io.BytesIO()
+    torch.save(model.state_dict(), buffer)
+    write_bytes(folder / "model.pt", buffer.getvalue())
+    full = {
+        "format": FORMAT_VERSION,
+        "name": model.name,
+        "class": f"{type(model).__module__}.{type(model).__qualname__}",
+        "ts": model.ts,
+        "spec": model.spec,
+        "param_names": list(model.param_names),
+        **meta,
+    }
+    write_text(folder / "meta.json", json.dumps(full, indent=2, sort_keys=True) + "\n")
+
+
+def read_meta(folder: str | Path) -> dict[str, Any]:
+    path = Path(folder) / "meta.json"
+    try:
+        meta = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise CapeError(
+            f"{path}: missing; train the model first (snakemake --cores 2 {path})"
+        ) from None
+    except json.JSONDecodeError as exc:
+        raise CapeError(
+            f"{path}: corrupt ({exc}); delete the model folder and train again"
+        ) from exc
+    if meta.get("format") != FORMAT_VERSION:
+        raise CapeError(
+            f"{path}: checkpoint format {meta.get('format')!r}, expected {FORMAT_VERSION}; retrain"
+        )
+    return meta
+
+
+def load_model(folder: str | Path, expected_name: str | None = None) -> LearnedModel:
+    """The trained model in ``folder``, in evaluation mode.
+
+    Raises ``CapeError`` naming the file and the fix when the folder is incomplete, a file is
+    corrupt, the model is not the expected one, or the weights do not fit the architecture.
+    """
+    folder = Path(folder)
+    meta = read_meta(folder)
+    name = meta["name"]
+    if expected_name is not None and name != expected_name:
+        raise CapeError(f"{folder}: holds model {name!r}, expected {expected_name!r}")
+    model = model_class(name, meta["spec"])(meta["spec"], meta["ts"])
+    weights = folder / "model.pt"
+    try:
+        state = torch.load(weights, map_location="cpu", weights_only=True)
+    except FileNotFoundError:
+        raise CapeError(f"{weights}: missing; train the model again") from None
+    except Exception as exc:  # torch raises several types for a damaged file
+        raise CapeError(
+            f"{weights}: not a readable checkpoint ({type(exc).__name__}: {exc}); "
+            "delete it and train again"
+        ) from exc
+    if not isinstance(state, dict):
+        raise CapeError(f"{weights}: expected a state dict, found {type(state).__name__}")
+    expected = model.state_dict()
+    missing = sorted(set(expected) - set(state))
+    unexpected = sorted(set(state) - set(expected))
+    wrong = sorted(
+        k for k in set(expected) & set(state) if tuple(state[k].shape) != tuple(expected[k].shape)
+    )
+    if missing or unexpected or wrong:
+        details = []
+        if missing:
+            details.append(f"missing {missing[:3]}")
+        if unexpected:
+            details.append(f"unexpected {unexpected[:3]}")
+        if wrong:
+            k = wrong[0]
+            details.append(
+                f"{k} has shape {tuple(state[k].shape)}, the architecture in meta.json "
+                f"needs {tuple(expected[k].shape)}"
+            )
+        raise CapeError(
+            f"{weights}: does not match the {name} architecture of {folder / 'meta.json'} ("
+            + "; ".join(details)
+            + "). The weights and the config disagree: retrain the model."
+        )
+    model.load_state_dict(state)
+    model.eval()
+    return model

@@ -1,0 +1,84 @@
+"""Writing result tables: CSV for machines, Markdown for people (LaTeX where the paper has one).
+
+All files are written atomically. Numbers keep full precision in CSV; Markdown and LaTeX use
+a per-column format so that a table reads like the paper's.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from cape.io import write_text
+
+Formatter = Callable[[Any], str]
+
+
+def _formatted(
+    frame: pd.DataFrame, formats: Mapping[str, str | Formatter] | None
+) -> list[list[str]]:
+    formats = formats or {}
+    rows = []
+    for _, record in frame.iterrows():
+        cells = []
+        for column in frame.columns:
+            value, fmt = record[column], formats.get(column)
+            if callable(fmt):
+                cells.append(fmt(value))
+            elif fmt is not None and isinstance(value, int | float):
+                cells.append(format(value, fmt))
+            else:
+                cells.append(str(value))
+        rows.append(cells)
+    return rows
+
+
+def to_markdown(frame: pd.DataFrame, formats: Mapping[str, str | Formatter] | None = None) -> str:
+    header = "| " + " | ".join(map(str, frame.columns)) + " |"
+    rule = "|" + "|".join("---" for _ in frame.columns) + "|"
+    body = ["| " + " | ".join(cells) + " |" for cells in _formatted(frame, formats)]
+    return "\n".join([header, rule, *body]) + "\n"
+
+
+def to_latex(
+    frame: pd.DataFrame, formats: Mapping[str, str | Formatter] | None = None, caption: str = ""
+) -> str:
+    escape = lambda s: str(s).replace("_", r"\_").replace("%", r"\%")  # noqa: E731
+    lines = [
+        r"\begin{table}[t]",
+        r"\centering",
+        r"\begin{tabular}{" + "l" * len(frame.columns) + "}",
+        r"\hline",
+        " & ".join(escape(c) for c in frame.columns) + r" \\",
+        r"\hline",
+        *(" & ".join(escape(c) for c in cells) + r" \\" for cells in _formatted(frame, formats)),
+        r"\hline",
+        r"\end{tabular}",
+    ]
+    if caption:
+        lines.append(r"\caption{" + escape(caption) + "}")
+    lines.append(r"\end{table}")
+    return "\n".join(lines) + "\n"
+
+
+def write_table(
+    frame: pd.DataFrame,
+    paths: Sequence[str | Path],
+    formats: Mapping[str, str | Formatter] | None = None,
+    caption: str = "",
+) -> None:
+    """Write ``frame`` to each path, the format chosen by its suffix (.csv, .md, .tex)."""
+    for path in paths:
+        suffix = Path(path).suffix
+        if suffix == ".csv":
+            text = frame.to_csv(index=False, float_format="%.10g")
+        elif suffix == ".md":
+            text = (f"{caption}\n\n" if caption else "") + to_markdown(frame, formats)
+        elif suffix == ".tex":
+            text = to_latex(frame, formats, caption)
+        else:
+            raise ValueError(f"{path}: unsupported table format {suffix!r} (use .csv, .md or .tex)")
+        write_text(path, text)

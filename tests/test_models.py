@@ -1,0 +1,184 @@
+"""The learned models (SPEC §4): registry, architecture, physics layer, guard, fast path."""
+
+from __future__ import annotations
+
+import copy
+
+import casadi as ca
+import numpy as np
+import pytest
+import torch
+
+from cape.data.windows import make_windows
+from cape.errors import CapeError
+from cape.models import model_class
+from cape.models.base import LearnedModel
+from cape.models.fast import FastPredictor
+from cape.models.training import build_model
+from cape.paper import PARAMETER_COUNT_CHECK
+from cape.vehicle import GROUND_TRUTH, velocity_derivatives
+
+TS = 0.02
+GT = GROUND_TRUTH.as_dict()
+
+
+def _phi_truth(model: LearnedModel, n: int, **extra: float) -> np.ndarray:
+    values = {**GT, "h": 0.0, "tau_delta": TS, "tau_T": TS, **extra}
+    return np.tile([values[name] for name in model.param_names], (n, 1))
+
+
+def _step(model: LearnedModel, features: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    last = torch.as_tensor(features[:, -1, :])
+    out = model.step_velocities(
+        last[:, 0], last[:, 1], last[:, 2], (last[:, 3], last[:, 4]),
+        (last[:, 3] + last[:, 5], last[:, 4] + last[:, 6]), torch.as_tensor(phi),
+    )  # fmt: skip
+    return torch.stack(out, dim=-1).numpy()
+
+
+@pytest.fixture(scope="module")
+def models(config) -> dict[str, LearnedModel]:
+    return {
+        name: build_model(name, config["models"][name], TS, seed=0)
+        for name in ("dpm", "ddm", "epm")
+    }
+
+
+def test_registry_maps_names_to_classes(config) -> None:
+    for name in ("dpm", "ddm", "epm"):
+        cls = model_class(name, config["models"][name])
+        assert issubclass(cls, LearnedModel) and cls.name == name
+    with pytest.raises(CapeError, match=r"unknown model 'mlp'.*models.mlp.module"):
+        model_class("mlp")
+    with pytest.raises(CapeError, match="cannot import module 'no_such_module'"):
+        model_class("mine", {"module": "no_such_module"})
+    with pytest.raises(CapeError, match="does not register it"):
+        model_class("mine", {"module": "cape.models.ddm"})
+
+
+@pytest.mark.parametrize(("name", "gru", "fc"), [("dpm", 8, 3), ("ddm", 7, 17), ("epm", 7, 8)])
+def test_architecture_matches_the_paper(models, name: str, gru: int, fc: int) -> None:
+    model = models[name]
+    assert model.n_parameters() == pytest.approx(PARAMETER_COUNT_CHECK[name], rel=0.02)
+    assert model.gru_layers() == gru and model.fc_layers() == fc
+    assert isinstance(model.gru, torch.nn.GRU) and model.gru.num_layers == gru
+
+
+def test_ddm_physics_with_true_parameters_reproduces_the_labels(models, datasets) -> None:
+    """The DDM's structure contains the data-generating model: with Φ = the truth, its physics
+    step gives the labels (the Euler side trajectory) to rounding."""
+    w = make_windows(datasets["ETHZ"], 5)
+    pred = _step(models["ddm"], w.features, _phi_truth(models["ddm"], len(w)))
+    np.testing.assert_allclose(pred, w.labels, rtol=0, atol=1e-12)
+
+
+def test_epm_with_no_load_transfer_and_no_lag_equals_ddm(models, datasets) -> None:
+    w = make_windows(datasets["ETHZMobil"], 7)
+    ddm = _step(models["ddm"], w.features, _phi_truth(models["ddm"], len(w)))
+    epm = _step(
+        models["epm"],
+        w.features,
+        _phi_truth(models["epm"], len(w), h=0.0, tau_delta=0.01, tau_T=0.005),
+    )
+    np.testing.assert_array_equal(epm, ddm)
+
+
+def test_epm_terms_against_the_shared_equations(models, datasets) -> None:
+    """Load transfer and actuator lag, checked term by term with the vehicle equations."""
+    w = make_windows(datasets["ETHZMobil"], 7)
+    f = w.features[::50]
+    phi = _phi_truth(models["epm"], len(f), h=0.03, tau_delta=0.08, tau_T=0.04)
+    got = _step(models["epm"], f, phi)
+    last = f[:, -1, :]
+    # lag: applied = fb + min(1, Ts/τ)·(cmd − fb) = fb + Δ·Ts/τ
+    throttle = last[:, 3] + last[:, 5] * (TS / 0.04)
+    delta = last[:, 4] + last[:, 6] * (TS / 0.08)
+    # load transfer, written out: Fz_f = m(g·lr − h·ax)/L over its static value, likewise rear
+    frx = (GT["Cm1"] - GT["Cm2"] * last[:, 0]) * throttle - GT["Cr0"] - GT["Cr2"] * last[:, 0] ** 2
+    m, lf, lr, g = GT["m"], GT["lf"], GT["lr"], 9.81
+    kf = (m * (g * lr - 0.03 * frx / m) / (lf + lr)) / (m * g * lr / (lf + lr))
+    kr = (m * (g * lf + 0.03 * frx / m) / (lf + lr)) / (m * g * lf / (lf + lr))
+    from cape.vehicle.dynamics import tire_forces
+
+    ffy, fry = tire_forces(last[:, 0], last[:, 1], last[:, 2], delta, GT)
+    ffy, fry = ffy * kf, fry * kr
+    dvx = (frx - ffy * np.sin(delta)) / m + last[:, 1] * last[:, 2]
+    dvy = (fry + ffy * np.cos(delta)) / m - last[:, 0] * last[:, 2]
+    dw = (ffy * lf * np.cos(delta) - fry * lr) / GT["Iz"]
+    expected = last[:, :3] + TS * np.stack([dvx, dvy, dw], axis=1)
+    np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-13)
+    assert np.abs(got - _step(models["epm"], f, _phi_truth(models["epm"], len(f)))).max() > 1e-6
+
+
+def test_dpm_uses_its_predicted_longitudinal_force(models, datasets) -> None:
+    w = make_windows(datasets["ETHZ"], 10)
+    f = w.features[::40]
+    frx = np.linspace(-0.1, 0.2, len(f))
+    phi = np.column_stack(
+        [np.tile([GT[n] for n in models["dpm"].param_names[:-1]], (len(f), 1)), frx]
+    )
+    got = _step(models["dpm"], f, phi)
+    last = f[:, -1, :]
+    p = {**GT, "Shf": 0.0, "Svf": 0.0, "Shr": 0.0, "Svr": 0.0}
+    dv = velocity_derivatives(
+        last[:, 0], last[:, 1], last[:, 2], np.nan, last[:, 4] + last[:, 6], p, frx=frx
+    )
+    np.testing.assert_allclose(got, last[:, :3] + TS * np.stack(dv, axis=1), rtol=1e-12, atol=1e-13)
+    assert not models["dpm"].throttle_path
+
+
+@pytest.mark.parametrize("name", ["dpm", "ddm", "epm"])
+def test_physics_step_is_backend_neutral(models, name: str) -> None:
+    """The same step on NumPy floats and CasADi symbols (the NMPC's internal model)."""
+    model = models[name]
+    phi = (
+        _phi_truth(model, 1, h=0.02, tau_delta=0.05, tau_T=0.03)[0]
+        if name != "dpm"
+        else np.r_[[GT[n] for n in model.param_names[:-1]], 0.05]
+    )
+    args = (1.7, 0.05, 0.8, (0.3, 0.1), (0.35, 0.12))
+    num = np.array(model.step_velocities(*args, phi))
+    sym = ca.SX.sym("phi", len(phi))
+    f = ca.Function("f", [sym], [ca.vertcat(*model.step_velocities(*args, sym))])
+    np.testing.assert_allclose(np.array(f(phi)).ravel(), num, rtol=1e-13)
+    t = lambda v: torch.tensor(v, dtype=torch.float64)  # noqa: E731
+    torch_out = model.step_velocities(
+        *(t(a) for a in args[:3]), tuple(map(t, args[3])), tuple(map(t, args[4])), t(phi)
+    )
+    np.testing.assert_allclose([t.item() for t in torch_out], num, rtol=1e-13)
+
+
+@pytest.mark.parametrize("name", ["ddm", "epm"])
+def test_guard_keeps_every_output_inside_its_bounds(models, config, name: str) -> None:
+    model = copy.deepcopy(models[name])
+    with torch.no_grad():
+        for p in model.parameters():
+            p.mul_(50.0)  # saturate every unit
+    rng = np.random.default_rng(3)
+    extreme = rng.choice([-1e6, -1e3, 0.0, 1e3, 1e6], size=(64, model.history, 7))
+    phi = model.phi(torch.as_tensor(extreme)).detach().numpy()
+    bounds = config["models"][name]["bounds"]
+    lower = np.array([bounds[n][0] for n in model.param_names])
+    upper = np.array([bounds[n][1] for n in model.param_names])
+    assert np.isfinite(phi).all()
+    assert (phi >= lower).all() and (phi <= upper).all()
+    assert (phi == upper).any() or (phi == lower).any()  # really saturated
+
+
+@pytest.mark.parametrize("name", ["dpm", "ddm", "epm"])
+def test_fast_path_matches_the_training_graph(models, datasets, name: str) -> None:
+    model = copy.deepcopy(models[name])
+    w = make_windows(datasets["ETHZMobil"], model.history)
+    flat = w.features.reshape(-1, 7)
+    model.set_scaler(flat.mean(axis=0), flat.std(axis=0))
+    features = w.features[::7]
+    with torch.no_grad():
+        ref = model(torch.as_tensor(features)).numpy()
+        ref_phi = model.phi(torch.as_tensor(features)).numpy()
+    fast = FastPredictor(model)
+    pred = np.array([fast.predict(x) for x in features])
+    phi = np.array([fast.phi(x) for x in features])
+    # the next state, what the closed loop consumes: ≤ 1e-6 relative
+    assert np.max(np.abs(pred - ref) / np.abs(ref).max(axis=0)) <= 1e-6
+    # Φ: within the float32 rounding of the training graph itself (relative to each range)
+    assert np.max(np.abs(phi - ref_phi) / np.maximum(np.abs(ref_phi).max(axis=0), 1e-12)) <= 1e-4

@@ -1,0 +1,194 @@
+"""Training, checkpoints and the open-loop evaluation (SPEC §4, §4.4, §4.5)."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from cape.cli import main
+from cape.data.windows import make_windows
+from cape.errors import CapeError
+from cape.models.checkpoint import load_model, save_model
+from cape.models.evaluate import count_flops, frozen_parameters, multistep_error, one_step_rmse
+from cape.models.training import TrainingData, train_model
+from cape.vehicle import GROUND_TRUTH
+
+TS = 0.02
+
+
+@pytest.fixture(scope="module")
+def small_data(datasets) -> dict[int, TrainingData]:
+    """A small slice of the ETHZ windows per history length: enough to train for seconds."""
+    out = {}
+    for history in (5, 7, 10):
+        full = TrainingData.from_dataset(datasets["ETHZ"], history, 0.9, seed=0)
+        out[history] = TrainingData(
+            full.train.subset(np.arange(96)), full.val.subset(np.arange(32)), full.scaler
+        )
+    return out
+
+
+def _train(config, name: str, data: TrainingData, seed: int = 0, epochs: int = 2):
+    return train_model(
+        name, config["models"][name], data, ts=TS, seed=seed, epochs=epochs, progress=False
+    )
+
+
+@pytest.mark.parametrize("name", ["dpm", "ddm", "epm"])
+def test_two_epochs_on_a_small_slice_run_in_seconds(config, small_data, name: str) -> None:
+    spec = config["models"][name]
+    start = time.perf_counter()
+    result = _train(config, name, small_data[spec["history"]])
+    assert time.perf_counter() - start < 20.0
+    assert [r["epoch"] for r in result.losses] == [1, 2]
+    assert all(np.isfinite(r["train_loss"]) and np.isfinite(r["val_loss"]) for r in result.losses)
+    assert result.best_val_loss == min(r["val_loss"] for r in result.losses)
+
+
+def test_same_seed_same_losses_other_seed_other_weights(config, small_data) -> None:
+    a = _train(config, "epm", small_data[7], seed=0)
+    b = _train(config, "epm", small_data[7], seed=0)
+    c = _train(config, "epm", small_data[7], seed=1)
+    assert a.losses == b.losses  # bit for bit
+    for key, value in a.model.state_dict().items():
+        assert torch.equal(value, b.model.state_dict()[key])
+    assert not torch.equal(a.model.gru.weight_ih_l0, c.model.gru.weight_ih_l0)
+    assert a.losses != c.losses
+
+
+def test_training_reduces_the_loss(config, small_data) -> None:
+    result = _train(config, "ddm", small_data[5], epochs=6)
+    assert result.losses[-1]["train_loss"] < 0.5 * result.losses[0]["train_loss"]
+
+
+def test_best_validation_checkpoint_is_kept(config, small_data) -> None:
+    result = _train(config, "dpm", small_data[10], epochs=4)
+    best = min(result.losses, key=lambda r: r["val_loss"])
+    assert result.best_epoch == best["epoch"]
+    with torch.no_grad():
+        val = small_data[10].val
+        loss = torch.mean(
+            (result.model(torch.as_tensor(val.features)) - torch.as_tensor(val.labels)) ** 2
+        )
+    assert float(loss) == pytest.approx(best["val_loss"], rel=1e-12)
+
+
+def test_checkpoint_round_trip(config, small_data, tmp_path: Path) -> None:
+    result = _train(config, "epm", small_data[7])
+    save_model(result.model, tmp_path, {"seed": 0})
+    loaded = load_model(tmp_path, expected_name="epm")
+    x = torch.as_tensor(small_data[7].val.features)
+    with torch.no_grad():
+        assert torch.equal(loaded(x), result.model(x))
+    assert json.loads((tmp_path / "meta.json").read_text())["param_names"][-1] == "tau_T"
+
+
+def test_corrupt_or_mismatched_checkpoints_fail_clearly(config, small_data, tmp_path: Path) -> None:
+    result = _train(config, "ddm", small_data[5], epochs=1)
+    save_model(result.model, tmp_path, {})
+    with pytest.raises(CapeError, match="holds model 'ddm', expected 'epm'"):
+        load_model(tmp_path, expected_name="epm")
+    # weights of another architecture: the config (meta.json) says 8 layers, the file has 16
+    meta = json.loads((tmp_path / "meta.json").read_text())
+    meta["spec"]["head"]["layers"] = 8
+    (tmp_path / "meta.json").write_text(json.dumps(meta))
+    with pytest.raises(CapeError, match=r"does not match the ddm architecture.*retrain"):
+        load_model(tmp_path)
+    meta["spec"]["head"]["layers"] = 16
+    meta["spec"]["head"]["width"] = 400
+    (tmp_path / "meta.json").write_text(json.dumps(meta))
+    with pytest.raises(CapeError, match=r"has shape .* needs"):
+        load_model(tmp_path)
+    # a damaged weights file
+    meta["spec"]["head"]["width"] = 436
+    (tmp_path / "meta.json").write_text(json.dumps(meta))
+    (tmp_path / "model.pt").write_bytes(b"this is not a checkpoint")
+    with pytest.raises(CapeError, match=r"model.pt: not a readable checkpoint"):
+        load_model(tmp_path)
+    (tmp_path / "meta.json").write_text("{broken")
+    with pytest.raises(CapeError, match=r"meta\.json: corrupt"):
+        load_model(tmp_path)
+    with pytest.raises(CapeError, match="missing; train the model first"):
+        load_model(tmp_path / "nowhere")
+
+
+class _TruePhi:
+    """Stand-in network output: the ground-truth Φ for every window."""
+
+    def __init__(self, model) -> None:
+        values = {**GROUND_TRUTH.as_dict(), "h": 0.0, "tau_delta": TS, "tau_T": TS}
+        self.phi_row = torch.tensor([values[n] for n in model.param_names], dtype=torch.float64)
+
+    def __call__(self, windows: torch.Tensor) -> torch.Tensor:
+        return self.phi_row.expand(windows.shape[0], -1)
+
+
+def test_evaluation_of_a_perfect_model_is_exact(config, datasets) -> None:
+    """With Φ = truth the DDM is the data-generating model: every error is rounding."""
+    from cape.models.training import build_model
+
+    model = build_model("ddm", config["models"]["ddm"], TS, seed=0)
+    model.phi = _TruePhi(model)  # type: ignore[method-assign]
+    test = make_windows(datasets["ETHZMobil"], 5)
+    assert max(one_step_rmse(model, test).values()) < 1e-12
+    assert max(multistep_error(model, datasets["ETHZMobil"], horizon=15).values()) < 1e-10
+
+
+def test_multistep_with_horizon_one_is_the_one_step_error(config, small_data, datasets) -> None:
+    result = _train(config, "epm", small_data[7], epochs=1)
+    test = make_windows(datasets["ETHZMobil"], 7)
+    one = multistep_error(result.model, datasets["ETHZMobil"], horizon=1)
+    with torch.no_grad():
+        err = np.abs(result.model(torch.as_tensor(test.features)).numpy() - test.labels)
+    # horizon 1 uses every window whose label exists: one more than make_windows keeps
+    np.testing.assert_allclose([one["vx"], one["vy"], one["omega"]], err.mean(axis=0), rtol=2e-3)
+    assert multistep_error(result.model, datasets["ETHZMobil"], horizon=15)["vx"] > one["vx"]
+
+
+def test_frozen_parameters_are_medians(config, small_data) -> None:
+    dpm = _train(config, "dpm", small_data[10], epochs=1).model
+    frozen = frozen_parameters(dpm, small_data[10].train)
+    with torch.no_grad():
+        phi = dpm.phi(torch.as_tensor(small_data[10].train.features)).numpy()
+    assert frozen["Bf"] == pytest.approx(float(np.median(phi[:, 0])))
+    assert (
+        "Frx" not in frozen
+        and frozen["Cm1"] == GROUND_TRUTH.Cm1
+        and frozen["Cr2"] == GROUND_TRUTH.Cr2
+    )
+
+
+def test_flops_are_counted(config) -> None:
+    from cape.models.training import build_model
+
+    ddm = build_model("ddm", config["models"]["ddm"], TS, seed=0)
+    flops = count_flops(ddm, np.zeros((5, 7)))
+    linear_macs = sum(
+        m.in_features * m.out_features for m in ddm.modules() if isinstance(m, torch.nn.Linear)
+    )
+    assert flops >= 2 * linear_macs  # 2 FLOPs per multiply-accumulate, plus the GRU's
+
+
+def test_cli_train_writes_a_complete_model_folder(datasets, tmp_path: Path) -> None:
+    data = tmp_path / "ethz.npz"
+    np.savez(data, **datasets["ETHZ"])
+    out = tmp_path / "epm"
+    assert (
+        main(["train", "--model", "epm", "--data", str(data), "--out", str(out), "--epochs", "1"])
+        == 0
+    )
+    assert sorted(p.name for p in out.iterdir()) == ["loss.csv", "meta.json", "model.pt"]
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["epochs"] == 1 and meta["seed"] == 0 and len(meta["data_sha256"]) == 64
+    assert (out / "loss.csv").read_text().splitlines()[0] == "epoch,train_loss,val_loss"
+    assert isinstance(load_model(out, "epm"), torch.nn.Module)
+
+
+def test_cli_train_unknown_model_is_clear(tmp_path: Path, capsys) -> None:
+    assert main(["train", "--model", "gpt", "--data", "x.npz", "--out", str(tmp_path)]) == 2
+    assert "--model gpt: not in the config's `models`" in capsys.readouterr().err

@@ -1,0 +1,112 @@
+# The learned models (SPEC §4): one training job per model.
+
+
+rule train:
+    input:
+        data=dataset_path(config["data"]["train_track"]),
+    output:
+        weights="results/models/{model}/model.pt",
+        meta="results/models/{model}/meta.json",
+        losses="results/models/{model}/loss.csv",
+    params:
+        cfg=lambda wildcards: model_config_json(wildcards.model),
+        out=lambda wildcards, output: os.path.dirname(output.weights),
+    threads: config["training"]["threads"]
+    resources:
+        runtime=240,
+    conda:
+        CAPE_ENV
+    log:
+        "results/logs/train/{model}.log",
+    benchmark:
+        "results/benchmarks/train/{model}.tsv"
+    shell:
+        "cape train --model {wildcards.model} --data {input.data} --out {params.out}"
+        " --threads {threads} --config-json {params.cfg:q} > {log} 2>&1"
+
+
+rule freeze:
+    input:
+        weights="results/models/{model}/model.pt",
+        meta="results/models/{model}/meta.json",
+        data=dataset_path(config["data"]["train_track"]),
+    output:
+        "results/models/{model}/frozen_phi.json",
+    params:
+        cfg=lambda wildcards: config_json("data"),
+        folder=lambda wildcards, input: os.path.dirname(input.weights),
+    conda:
+        CAPE_ENV
+    log:
+        "results/logs/freeze/{model}.log",
+    shell:
+        "cape freeze --model {wildcards.model}={params.folder} --data {input.data} --out {output}"
+        " --config-json {params.cfg:q} > {log} 2>&1"
+
+
+rule openloop_table:
+    input:
+        models=trained_models(),
+        train=dataset_path(config["data"]["train_track"]),
+        test=dataset_path(config["data"]["test_track"]),
+    output:
+        csv="results/tables/openloop_rmse.csv",
+        md="results/tables/openloop_rmse.md",
+        tex="results/tables/openloop_rmse.tex",
+    params:
+        models=model_args(),
+        cfg=lambda wildcards: config_json("data", "training"),
+    conda:
+        CAPE_ENV
+    log:
+        "results/logs/tables/openloop_rmse.log",
+    benchmark:
+        "results/benchmarks/tables/openloop_rmse.tsv"
+    shell:
+        "cape openloop {params.models} --train-data {input.train} --test-data {input.test}"
+        " --out {output.csv} --out {output.md} --out {output.tex} --config-json {params.cfg:q} > {log} 2>&1"
+
+
+rule complexity_table:
+    input:
+        models=trained_models(),
+        test=dataset_path(config["data"]["test_track"]),
+    output:
+        csv="results/tables/model_complexity.csv",
+        md="results/tables/model_complexity.md",
+        tex="results/tables/model_complexity.tex",
+    params:
+        models=model_args(),
+        cfg=lambda wildcards: config_json("training"),
+    conda:
+        CAPE_ENV
+    log:
+        "results/logs/tables/model_complexity.log",
+    benchmark:
+        "results/benchmarks/tables/model_complexity.tsv"
+    shell:
+        "cape complexity {params.models} --data {input.test}"
+        " --out {output.csv} --out {output.md} --out {output.tex} --config-json {params.cfg:q} > {log} 2>&1"
+
+
+rule figure_models:
+    input:
+        models=trained_models(),
+        test=dataset_path(config["data"]["test_track"]),
+    output:
+        phi_pdf="results/figures/model_phi_ethzmobil.pdf",
+        phi_png="results/figures/model_phi_ethzmobil.png",
+        curves_pdf="results/figures/training_curves.pdf",
+        curves_png="results/figures/training_curves.png",
+    params:
+        models=model_args(),
+        cfg=lambda wildcards: config_json("data", "models"),
+    conda:
+        CAPE_ENV
+    log:
+        "results/logs/figures/models.log",
+    shell:
+        "cape plot-models {params.models} --data {input.test}"
+        " --phi-out {output.phi_pdf} --phi-out {output.phi_png}"
+        " --curves-out {output.curves_pdf} --curves-out {output.curves_png}"
+        " --config-json {params.cfg:q} > {log} 2>&1"
