@@ -82,8 +82,8 @@ class LearnedModel(nn.Module):
         self.feature_scale.copy_(torch.as_tensor(scale, dtype=torch.float64))
 
     def phi(self, windows: torch.Tensor) -> torch.Tensor:
-        """Φ (B, P) in float64 for unscaled windows (B, H, 7). The network runs in float32."""
-        z = ((windows - self.feature_mean) / self.feature_scale).to(torch.float32)
+        """Φ (B, P) in float64 for unscaled windows (B, H, 7), whatever the network's precision."""
+        z = ((windows - self.feature_mean) / self.feature_scale).to(self.gru.weight_ih_l0.dtype)
         out, _ = self.gru(z)  # hidden state starts at zero for every window
         return self.output(self.trunk(out.reshape(out.shape[0], -1))).to(torch.float64)
 
