@@ -11,7 +11,9 @@ from cape.tables import to_latex, to_markdown, write_table
 
 
 def test_markdown_and_latex_formats() -> None:
-    frame = pd.DataFrame({"model": ["epm", "ddm"], "rmse_vx": [1.19e-4, 8.72e-5], "layers": [8, 17]})
+    frame = pd.DataFrame(
+        {"model": ["epm", "ddm"], "rmse_vx": [1.19e-4, 8.72e-5], "layers": [8, 17]}
+    )
     md = to_markdown(frame, {"rmse_vx": ".2e"})
     assert md.splitlines() == [
         "| model | rmse_vx | layers |",

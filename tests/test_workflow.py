@@ -79,7 +79,10 @@ def test_no_mirror_and_no_network_fails_with_the_clear_message(tmp_path: Path) -
 @pytest.mark.skipif(shutil.which("ruff") is None, reason="ruff is installed by requirements.txt")
 def test_code_is_ruff_clean() -> None:
     result = subprocess.run(
-        ["ruff", "check", "src", "tests", "benchmarks"], cwd=REPO_ROOT, capture_output=True, text=True
+        ["ruff", "check", "src", "tests", "benchmarks"],
+        cwd=REPO_ROOT,
+        capture_output=True,
+        text=True,
     )
     assert result.returncode == 0, result.stdout
 
@@ -92,10 +95,18 @@ def test_smoke_config_builds_the_model_tables(tmp_path: Path) -> None:
     work = _workdir(tmp_path)
     shutil.copy(REPO_ROOT / "config" / "smoke.yaml", work / "config" / "smoke.yaml")
     targets = ["results/tables/model_complexity.csv", "results/tables/openloop_rmse.csv"]
-    result = _snakemake("--cores", "2", "-d", str(work), "--configfile", "config/smoke.yaml", *targets)
+    result = _snakemake(
+        "--cores", "2", "-d", str(work), "--configfile", "config/smoke.yaml", *targets
+    )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     complexity = pd.read_csv(work / targets[0])
     assert list(complexity["model"]) == ["dpm", "ddm", "epm"]
-    assert complexity["params_M"].tolist() == pytest.approx([0.028851, 2.878035, 0.917828], abs=1e-6)
+    assert complexity["params_M"].tolist() == pytest.approx(
+        [0.028851, 2.878035, 0.917828], abs=1e-6
+    )
     openloop = pd.read_csv(work / targets[1])
-    assert (openloop.filter(like="rmse").drop(columns=openloop.filter(like="paper").columns) > 0).all().all()
+    assert (
+        (openloop.filter(like="rmse").drop(columns=openloop.filter(like="paper").columns) > 0)
+        .all()
+        .all()
+    )
