@@ -87,7 +87,6 @@ def test_code_is_ruff_clean() -> None:
     assert result.returncode == 0, result.stdout
 
 
-@pytest.mark.slow
 def test_smoke_config_builds_the_model_tables(tmp_path: Path) -> None:
     """Two-epoch training of every model through the real rules, then both model tables."""
     import pandas as pd
@@ -96,7 +95,7 @@ def test_smoke_config_builds_the_model_tables(tmp_path: Path) -> None:
     shutil.copy(REPO_ROOT / "config" / "smoke.yaml", work / "config" / "smoke.yaml")
     targets = ["results/tables/model_complexity.csv", "results/tables/openloop_rmse.csv"]
     result = _snakemake(
-        "--cores", "2", "-d", str(work), "--configfile", "config/smoke.yaml", *targets
+        "--cores", "2", "-d", str(work), *targets, "--configfile", "config/smoke.yaml"
     )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     complexity = pd.read_csv(work / targets[0])
