@@ -17,6 +17,7 @@ include: "workflow/rules/common.smk"
 include: "workflow/rules/tracks.smk"
 include: "workflow/rules/data.smk"
 include: "workflow/rules/models.smk"
+include: "workflow/rules/reference.smk"
 include: "workflow/rules/figures.smk"
 
 

@@ -108,6 +108,54 @@ def cmd_plot_tracks(args: argparse.Namespace) -> None:
     print("wrote " + ", ".join(args.out))
 
 
+# --- cape raceline -------------------------------------------------------------------------
+def cmd_raceline(args: argparse.Namespace) -> None:
+    import numpy as np
+
+    from cape.config import section
+    from cape.io import save_npz
+    from cape.plots.style import save_figure
+    from cape.plots.tracks import plot_raceline
+    from cape.tracks.raceline import build_raceline, lap_time
+    from cape.tracks.track import load_raceline, load_track
+    from cape.vehicle.params import ACTUATOR_LIMITS, GROUND_TRUTH
+
+    config = _config(args)
+    settings = section(config, "reference")
+    catalogue = section(config, "tracks")["catalogue"]
+    if args.track not in catalogue:
+        raise CapeError(
+            f"--track {args.track}: not in `tracks.catalogue` ({', '.join(sorted(catalogue))})"
+        )
+    entry = catalogue[args.track]
+    tracks_dir = Path(args.tracks_dir or config["tracks"]["dir"])
+    track = load_track(tracks_dir, args.track, entry["prefix"], entry["width"])
+    line = build_raceline(track, settings, GROUND_TRUTH, ACTUATOR_LIMITS)
+    path = line.path
+    scaled = np.clip(settings["scale"] * line.speed, settings["v_min"], settings["v_max"])
+    ideal = float(np.sum(path.segment_lengths / scaled))
+    save_npz(
+        args.out,
+        x=line.x,
+        y=line.y,
+        speed=line.speed,
+        s=path.s_points,
+        heading=path.heading(path.s_points),
+        curvature=path.curvature(path.s_points),
+    )
+    title = (
+        f"{args.track}: CAPE raceline {path.length:.2f} m; ideal lap {lap_time(line):.2f} s at "
+        f"v_path,\n{ideal:.2f} s at the reference speed (scale {settings['scale']}, "
+        f"clipped to [{settings['v_min']}, {settings['v_max']}] m/s)"
+    )
+    print(title)
+    if args.figure:
+        bayesrace = load_raceline(tracks_dir, f"{entry['prefix']}_raceline.npz")
+        save_figure(
+            plot_raceline(track, line.x, line.y, line.speed, bayesrace, title), *args.figure
+        )
+
+
 # --- cape train ----------------------------------------------------------------------------
 def _model_spec(config: dict[str, Any], name: str) -> dict[str, Any]:
     from cape.config import section
@@ -387,6 +435,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_config_args(p)
     p.set_defaults(func=cmd_plot_tracks)
+
+    p = sub.add_parser("raceline", help="CAPE's minimum-curvature reference raceline (SPEC §2)")
+    p.add_argument("--track", required=True, help="track name from `tracks.catalogue`")
+    p.add_argument("--out", required=True, help="output .npz (x, y, speed, s, heading, curvature)")
+    p.add_argument(
+        "--figure", action="append", metavar="PATH", help="figure beside BayesRace's (repeat)"
+    )
+    p.add_argument(
+        "--tracks-dir", help="folder of the verified track files (default: config tracks.dir)"
+    )
+    _add_config_args(p)
+    p.set_defaults(func=cmd_raceline)
 
     p = sub.add_parser("train", help="train a learned model on the ETHZ windows (SPEC §4)")
     p.add_argument(

@@ -47,6 +47,14 @@ def check_consistency(config: dict[str, Any], source: str = "config") -> None:
                 f"{source}: field `data.tracks.{name}` names a track missing from "
                 f"`tracks.catalogue` ({sorted(catalogue)}); add it there or remove it here."
             )
+    reference = config.get("reference")
+    if reference is not None and reference["track"] not in catalogue:
+        raise CapeError(
+            f"{source}: field `reference.track` is {reference['track']!r}, which is not in "
+            f"`tracks.catalogue` ({sorted(catalogue)}); choose one of those."
+        )
+    if reference is not None and reference["v_min"] > reference["v_max"]:
+        raise CapeError(f"{source}: field `reference.v_min` exceeds `reference.v_max`; swap them.")
     for key in ("train_track", "test_track"):
         if data[key] not in data["tracks"]:
             raise CapeError(

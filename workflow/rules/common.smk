@@ -21,7 +21,7 @@ MODELS = list(config["models"])
 
 
 wildcard_constraints:
-    track="|".join(DATA_TRACKS),
+    track="|".join(sorted(config["tracks"]["catalogue"])),
     model="|".join(MODELS),
 
 
@@ -84,4 +84,5 @@ def all_targets():
         "results/tables/model_complexity.csv",
         "results/figures/model_phi_ethzmobil.pdf",
         "results/figures/training_curves.pdf",
+        f"results/raceline/{config['reference']['track']}.npz",
     ]

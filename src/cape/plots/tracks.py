@@ -69,3 +69,39 @@ def plot_tracks(panels: list[TrackPanel]) -> plt.Figure:
     fig.tight_layout(rect=(0, 0.08, 1, 1))
     fig.legend(handles, labels, loc="lower center", ncol=3, fontsize=8, frameon=False)
     return fig
+
+
+def plot_raceline(track: Track, line_x: np.ndarray, line_y: np.ndarray, speed: np.ndarray,
+                  bayesrace: Raceline, title: str) -> plt.Figure:  # fmt: skip
+    """CAPE's raceline coloured by its speed profile, beside the BayesRace raceline."""
+    fig, ax = plt.subplots(figsize=(8.0, 5.6))
+    closed = lambda a: np.append(a, a[:1])  # noqa: E731
+    ax.plot(
+        closed(track.inner[0]),
+        closed(track.inner[1]),
+        color="black",
+        lw=1.2,
+        label="track boundary",
+    )
+    ax.plot(closed(track.outer[0]), closed(track.outer[1]), color="black", lw=1.2)
+    ax.plot(
+        closed(track.center.x),
+        closed(track.center.y),
+        color="0.6",
+        lw=0.8,
+        ls="--",
+        label="centre line",
+    )
+    ax.plot(closed(bayesrace.x), closed(bayesrace.y), color="tab:orange", lw=1.0, ls="-.",
+            label=f"BayesRace raceline ({bayesrace.name})")  # fmt: skip
+    points = ax.scatter(line_x, line_y, c=speed, s=2, cmap="viridis", label="CAPE raceline")
+    fig.colorbar(points, ax=ax, label="path speed v_path (m/s), before scaling")
+    ax.plot(line_x[0], line_y[0], "k>", ms=7, label="start")
+    ax.set_title(title)
+    ax.set_xlabel("X (m)")
+    ax.set_ylabel("Y (m)")
+    ax.set_aspect("equal")
+    ax.grid(True, lw=0.3, alpha=0.5)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=3, fontsize=8, frameon=False)
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,19 @@
+# The closed-loop reference (SPEC §2): CAPE's minimum-curvature raceline of a track.
+
+
+rule raceline:
+    input:
+        track_files(),
+    output:
+        line="results/raceline/{track}.npz",
+        pdf="results/figures/raceline_{track}.pdf",
+        png="results/figures/raceline_{track}.png",
+    params:
+        cfg=lambda wildcards: config_json("tracks", "reference"),
+    conda:
+        CAPE_ENV
+    log:
+        "results/logs/raceline/{track}.log",
+    shell:
+        "cape raceline --track {wildcards.track} --out {output.line}"
+        " --figure {output.pdf} --figure {output.png} --config-json {params.cfg:q} > {log} 2>&1"
