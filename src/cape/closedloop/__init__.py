@@ -1,0 +1,1 @@
+"""The closed loop (SPEC §5–§7): plants, disturbances, reference, controllers, rollouts."""
