@@ -118,12 +118,28 @@ class LearnedModel(nn.Module):
         self, vx: Any, vy: Any, omega: Any, u_fb: tuple[Any, Any], u_cmd: tuple[Any, Any], phi: Any
     ) -> tuple[Any, Any, Any]:
         """One forward-Euler step of [vx, vy, ω] with parameters Φ (any backend)."""
-        p = self.physical_params(phi)
+        return self.step_with_params(vx, vy, omega, u_fb, u_cmd, self.physical_params(phi))
+
+    def step_with_params(
+        self,
+        vx: Any,
+        vy: Any,
+        omega: Any,
+        u_fb: tuple[Any, Any],
+        u_cmd: tuple[Any, Any],
+        p: dict[str, Any],
+    ) -> tuple[Any, Any, Any]:
+        """The same step from the parameter mapping itself: what a plant uses when it changes the
+        parameters (a mismatch) or freezes them (the fixed-parameter variants)."""
         throttle, delta = self.applied_inputs(u_fb, u_cmd, p)
         dvx, dvy, domega = velocity_derivatives(
             vx, vy, omega, throttle, delta, p, **self.equation_terms(p)
         )
         return vx + self.ts * dvx, vy + self.ts * dvy, omega + self.ts * domega
+
+    def frozen_params(self, frozen: dict[str, float]) -> dict[str, Any]:
+        """Parameters of the fixed-parameter variant (SPEC §4.5): constants + frozen Φ."""
+        return {**self._constants, **frozen}
 
     @staticmethod
     def first_order_lag(u_fb: Any, u_cmd: Any, tau: Any, ts: float) -> Any:

@@ -2,7 +2,8 @@
 
 Φ = [Bf, Cf, Df, Ef, Br, Cr, Dr, Er, Frx], unbounded (no physics guard). The longitudinal force
 is predicted directly, so the model has no throttle path and no drivetrain parameters; no
-Sh/Sv offsets; Iz fixed at its known value.
+Sh/Sv offsets; Iz fixed at its known value. Its fixed-parameter variant has no Frx and uses
+the drivetrain law with the true Cm1, Cm2, Cr0, Cr2 instead.
 """
 
 from __future__ import annotations
@@ -25,4 +26,5 @@ class DeepPacejkaModel(LearnedModel):
         return nn.Linear(width, len(self.param_names))
 
     def equation_terms(self, p: dict[str, Any]) -> dict[str, Any]:
-        return {"frx": p["Frx"]}
+        # the frozen variant replaces the predicted force by the drivetrain law (SPEC §4.5)
+        return {"frx": p["Frx"]} if "Frx" in p else {}
