@@ -156,6 +156,57 @@ def cmd_raceline(args: argparse.Namespace) -> None:
         )
 
 
+# --- cape rollout --------------------------------------------------------------------------
+PLANT_KINDS = "dpm|ddm|epm (learned), dpm-fixed|ddm-fixed|epm-fixed, or truth"
+
+
+def cmd_rollout(args: argparse.Namespace) -> None:
+    import json
+
+    import numpy as np
+    import pandas as pd
+
+    from cape.closedloop.setup import build_run
+    from cape.io import atomic_open, write_text
+
+    config = _config(args)
+    try:
+        eta = float(args.eta)
+    except ValueError:
+        raise CapeError(f"--eta {args.eta!r}: not a number") from None
+    run = build_run(
+        config,
+        args.plant,
+        args.controller,
+        eta,
+        args.seed,
+        args.internal,
+        Path(args.models_dir),
+        args.raceline,
+    )
+    result = run()
+    out = Path(args.out)
+    metrics = {
+        "plant": args.plant,
+        "controller": args.controller,
+        "internal": run.internal,
+        "eta": args.eta,
+        "seed": args.seed,
+        **result.metrics,
+    }
+    write_text(out / "metrics.json", json.dumps(metrics, indent=2, sort_keys=True) + "\n")
+    timing = {
+        "solve_ms_median": float(np.median(result.solve_ms)) if result.solve_ms.size else None,
+        "solve_ms_p90": float(np.percentile(result.solve_ms, 90)) if result.solve_ms.size else None,
+    }
+    write_text(out / "timing.json", json.dumps(timing, indent=2, sort_keys=True) + "\n")
+    with atomic_open(out / "timeseries.parquet", "wb") as handle:
+        pd.DataFrame(result.series).to_parquet(handle, index=False)
+    status = "lap" if metrics["success"] else f"failed ({metrics['failure']})"
+    run_name = f"{args.plant}/{args.controller} η={args.eta} seed={args.seed}"
+    print(f"{run_name}: {status}, lap time {metrics['lap_time']}")
+
+
 # --- cape train ----------------------------------------------------------------------------
 def _model_spec(config: dict[str, Any], name: str) -> dict[str, Any]:
     from cape.config import section
@@ -447,6 +498,24 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_config_args(p)
     p.set_defaults(func=cmd_raceline)
+
+    p = sub.add_parser("rollout", help="one closed-loop lap: plant, controller, η, seed (SPEC §5)")
+    p.add_argument("--plant", required=True, help=PLANT_KINDS)
+    p.add_argument(
+        "--controller", required=True, help="controller name from the config (pid, rise, ...)"
+    )
+    p.add_argument("--eta", required=True, help="disturbance level η (0 … 5)")
+    p.add_argument("--seed", required=True, type=int, help="seed of every random draw of the run")
+    p.add_argument(
+        "--out", required=True, help="output folder (metrics.json, timing.json, timeseries.parquet)"
+    )
+    p.add_argument(
+        "--internal", help="the controller's internal model (default: the plant's model)"
+    )
+    p.add_argument("--models-dir", default="results/models", help="folder of the trained models")
+    p.add_argument("--raceline", help="reference .npz (default: results/raceline/<track>.npz)")
+    _add_config_args(p)
+    p.set_defaults(func=cmd_rollout)
 
     p = sub.add_parser("train", help="train a learned model on the ETHZ windows (SPEC §4)")
     p.add_argument(

@@ -1,0 +1,97 @@
+"""The one reference generator every controller shares (SPEC §5.2).
+
+From the car's projected progress s0 on the closed reference path, point k lies at
+``s_k = s_{k−1} + v_ref(s_{k−1})·Ts`` with ``v_ref(s) = clip(scale·v_path(s), v_min, v_max)``.
+Each point carries position, heading, curvature and speed. Projection searches a window
+around the previous progress, so a path that passes near itself is not confused.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from cape.tracks.geometry import ClosedPath, Projection
+
+
+@dataclass(frozen=True)
+class ReferencePoints:
+    """Points k = 0 … N of the reference: arrays of length N+1."""
+
+    s: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    heading: np.ndarray
+    curvature: np.ndarray
+    speed: np.ndarray
+
+
+class ReferenceLine:
+    """A closed reference path with its speed rule."""
+
+    def __init__(
+        self, x: np.ndarray, y: np.ndarray, v_path: np.ndarray, settings: dict[str, Any], ts: float
+    ) -> None:
+        self.path = ClosedPath(x, y)
+        if len(self.path) != np.asarray(x).size:
+            v_path = np.asarray(v_path)[: len(self.path)]
+        self.v_path = np.asarray(v_path, dtype=float)
+        self.scale = float(settings["scale"])
+        self.v_min, self.v_max = float(settings["v_min"]), float(settings["v_max"])
+        self.ts = ts
+        self.window = float(settings.get("projection_window", 0.5))
+        self.length = self.path.length
+
+    def v_ref(self, s: np.ndarray | float) -> np.ndarray:
+        """Reference speed at arc length ``s``: the scaled, clipped path speed."""
+        v = np.interp(np.mod(s, self.length), self.path.s_points, self.v_path, period=self.length)
+        return np.clip(self.scale * v, self.v_min, self.v_max)
+
+    def project(self, px: float, py: float, s_hint: float | None) -> Projection:
+        """Projection near ``s_hint`` (global search when there is none)."""
+        if s_hint is None:
+            return self.path.project(px, py)
+        return self.path.project(
+            px, py, s_hint=float(np.mod(s_hint, self.length)), window=self.window
+        )
+
+    def points(self, s0: float, n: int) -> ReferencePoints:
+        """Reference points k = 0 … n starting at progress ``s0``."""
+        s = np.empty(n + 1)
+        s[0] = s0
+        for k in range(1, n + 1):
+            s[k] = s[k - 1] + float(self.v_ref(s[k - 1])) * self.ts
+        xy = self.path.position(s)
+        return ReferencePoints(
+            s=s,
+            x=xy[0],
+            y=xy[1],
+            heading=self.path.heading(s),
+            curvature=self.path.curvature(s),
+            speed=self.v_ref(s),
+        )
+
+
+class ProgressTracker:
+    """Unwrapped progress of one body (the car, or a controller's estimate) along the line."""
+
+    def __init__(self, line: ReferenceLine) -> None:
+        self.line = line
+        self.s_wrapped: float | None = None
+        self.total = 0.0
+
+    def reset(self, px: float, py: float) -> Projection:
+        proj = self.line.project(px, py, None)
+        self.s_wrapped, self.total = proj.s, 0.0
+        return proj
+
+    def update(self, px: float, py: float) -> Projection:
+        """Project near the last progress and accumulate the signed advance."""
+        proj = self.line.project(px, py, self.s_wrapped)
+        length = self.line.length
+        step = (proj.s - (self.s_wrapped or 0.0) + length / 2) % length - length / 2
+        self.total += step
+        self.s_wrapped = proj.s
+        return proj

@@ -1,0 +1,161 @@
+"""One closed-loop run: a lap of the reference with a plant, a controller and disturbances
+(SPEC §5): the loop, the lap and failure rules, the metrics and the time series.
+
+reference ─► controller ─► actuator delay ─► plant ─► process disturbance
+     ▲                                                        │
+     └──── measured state ◄── noise + IMU bias ◄──────────────┘
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from cape.closedloop.disturbances import DisturbancePipeline
+from cape.closedloop.plants import Plant
+from cape.closedloop.reference import ProgressTracker, ReferenceLine
+from cape.controllers.base import Controller, cross_track_error, wrap_angle
+from cape.tracks.track import Track
+
+FAILURES = ("off_track", "timeout", "diverged")
+
+
+@dataclass
+class RolloutResult:
+    """What a run produced: the summary metrics and the full time series (one row per step)."""
+
+    metrics: dict[str, Any]
+    series: dict[str, np.ndarray]
+    solve_ms: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+def initial_state(line: ReferenceLine, vx0: float) -> np.ndarray:
+    """First point of the reference, heading along it, vx0, vy0 = ω0 = 0 (SPEC §2)."""
+    x, y = line.path.position(0.0)
+    return np.array([float(x), float(y), float(line.path.heading(0.0)), vx0, 0.0, 0.0])
+
+
+def run_lap(
+    plant: Plant,
+    controller: Controller,
+    line: ReferenceLine,
+    track: Track,
+    disturbances: DisturbancePipeline,
+    *,
+    horizon: int,
+    time_limit: float,
+    vx0: float,
+    penalty: dict[str, float],
+) -> RolloutResult:
+    """Drive one lap; never raises for a failed run (the failure and its reason are recorded)."""
+    ts = line.ts
+    max_steps = round(time_limit / ts)
+    x = initial_state(line, vx0)
+    plant.reset(x)
+    disturbances.reset(delta0=0.0)
+    car = ProgressTracker(line)  # the true progress: laps and tracking errors
+    seen = ProgressTracker(line)  # the controller's view, from the measured state
+    car.reset(x[0], x[1])
+    z = disturbances.measure(x)
+    proj_seen = seen.reset(z[0], z[1])
+    controller.reset(z)
+    rows: dict[str, list[float]] = {k: [] for k in SERIES_KEYS}
+    solve_ms: list[float] = []
+    failure: str | None = None
+    lap_time: float | None = None
+    steps = 0
+    for k in range(max_steps):
+        ref = line.points(proj_seen.s, horizon)
+        start = time.perf_counter()
+        try:
+            u_cmd, _info = controller.step(z, proj_seen, ref)
+        except FloatingPointError:
+            failure = "diverged"
+            break
+        solve_ms.append((time.perf_counter() - start) * 1e3)
+        if not np.all(np.isfinite(u_cmd)):
+            failure = "diverged"
+            break
+        u_app = disturbances.actuate(u_cmd)
+        x = disturbances.after_plant(plant.step(u_app))
+        steps = k + 1
+        if not np.all(np.isfinite(x)):
+            failure = "diverged"
+            break
+        proj_car = car.update(x[0], x[1])
+        # tracking errors against the reference point issued for this step (k = 1)
+        x_ref, y_ref, psi_ref = float(ref.x[1]), float(ref.y[1]), float(ref.heading[1])
+        dx, dy = x_ref - x[0], y_ref - x[1]
+        e_x = dx * math.cos(psi_ref) + dy * math.sin(psi_ref)
+        e_y = -dx * math.sin(psi_ref) + dy * math.cos(psi_ref)
+        psi_path = float(line.path.heading(proj_car.s))
+        e_cte = cross_track_error(x[0], x[1], proj_car.x, proj_car.y, psi_path)
+        z = disturbances.measure(x)
+        reference = (x_ref, y_ref, psi_ref, float(ref.speed[1]))
+        errors = (e_x, e_y, e_cte, wrap_angle(psi_path - x[2]))
+        _append(rows, (k + 1) * ts, x, z, reference, u_cmd, u_app, errors, solve_ms[-1])
+        if abs(track.center.project(x[0], x[1]).offset) > track.width / 2:
+            failure = "off_track"
+            break
+        if car.total >= line.length:
+            lap_time = (k + 1) * ts
+            break
+        proj_seen = seen.update(z[0], z[1])
+    else:
+        failure = "timeout"
+    series = {key: np.asarray(values, dtype=float) for key, values in rows.items()}
+    metrics = summarise(series, failure, lap_time, steps, time_limit, penalty)
+    return RolloutResult(metrics=metrics, series=series, solve_ms=np.asarray(solve_ms))
+
+
+SERIES_KEYS = (
+    "t", "X", "Y", "psi", "vx", "vy", "omega",
+    "z_X", "z_Y", "z_psi", "z_vx", "z_vy", "z_omega",
+    "ref_X", "ref_Y", "ref_psi", "ref_v",
+    "T_cmd", "delta_cmd", "T_applied", "delta_applied",
+    "e_x", "e_y", "e_cte", "e_psi", "solve_ms",
+)  # fmt: skip
+
+
+def _append(rows, t, x, z, ref, u_cmd, u_app, errors, solve) -> None:
+    values = [t, *x, *z, *ref, *u_cmd, *u_app, *errors, solve]
+    for key, value in zip(SERIES_KEYS, values, strict=True):
+        rows[key].append(float(value))
+
+
+def summarise(
+    series: dict[str, np.ndarray],
+    failure: str | None,
+    lap_time: float | None,
+    steps: int,
+    time_limit: float,
+    penalty: dict[str, float],
+) -> dict[str, Any]:
+    """The per-run metrics of SPEC §5.3 (deterministic: no wall-clock numbers)."""
+    success = failure is None and lap_time is not None
+
+    def mean_abs(key: str) -> float | None:
+        return float(np.mean(np.abs(series[key]))) if series[key].size else None
+
+    speed = np.hypot(series["vx"], series["vy"])
+    du = np.abs(np.diff(np.column_stack([series["T_cmd"], series["delta_cmd"]]), axis=0))
+    return {
+        "success": bool(success),
+        "failure": failure,
+        "lap_time": lap_time,
+        "lap_time_penalised": lap_time if success else float(penalty["lap_time"]),
+        "mean_abs_ex": mean_abs("e_x"),
+        "mean_abs_ey": mean_abs("e_y"),
+        "mean_abs_ex_penalised": mean_abs("e_x") if success else float(penalty["tracking_error"]),
+        "mean_abs_ey_penalised": mean_abs("e_y") if success else float(penalty["tracking_error"]),
+        "mean_abs_cte": mean_abs("e_cte"),
+        "mean_speed": float(speed.mean()) if speed.size else None,
+        "mean_abs_dT": float(du[:, 0].mean()) if du.size else None,
+        "mean_abs_ddelta": float(du[:, 1].mean()) if du.size else None,
+        "steps": int(steps),
+        "time_limit": float(time_limit),
+    }

@@ -1,0 +1,134 @@
+"""Assembling one run from its names: plant, controller, η, seed (what ``cape rollout`` does)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cape.closedloop.disturbances import DisturbancePipeline
+from cape.closedloop.plants import FixedParameterPlant, LearnedPlant, Plant, TruthPlant
+from cape.closedloop.reference import ReferenceLine
+from cape.closedloop.rollout import RolloutResult, run_lap
+from cape.config import section
+from cape.controllers import controller_class
+from cape.controllers.base import Controller
+from cape.errors import CapeError
+from cape.models.checkpoint import load_model
+from cape.tracks.track import Track, load_raceline, load_track
+from cape.vehicle.params import ACTUATOR_LIMITS, GROUND_TRUTH
+
+
+def parse_plant(name: str, models: dict[str, Any]) -> tuple[str, str | None]:
+    """``(kind, model)`` of a plant name: ("learned", "epm"), ("fixed", "ddm"), ("truth", None)."""
+    if name == "truth":
+        return "truth", None
+    model, _, suffix = name.partition("-")
+    if model in models and suffix in ("", "fixed"):
+        return ("fixed" if suffix else "learned"), model
+    raise CapeError(
+        f"--plant {name}: expected truth, a model name ({', '.join(models)}) or <model>-fixed"
+    )
+
+
+def load_reference(config: dict[str, Any], raceline: str | None) -> tuple[ReferenceLine, Track]:
+    settings = section(config, "reference")
+    ts = float(section(config, "data")["ts"])
+    tracks = section(config, "tracks")
+    name = settings["track"]
+    entry = tracks["catalogue"][name]
+    track = load_track(tracks["dir"], name, entry["prefix"], entry["width"])
+    if settings["line"] == "bayesrace_long":
+        rl = load_raceline(tracks["dir"], f"{entry['prefix']}_raceline_long.npz")
+        x, y, speed = rl.x, rl.y, rl.speed
+    else:
+        path = Path(raceline or f"results/raceline/{name}.npz")
+        if not path.is_file():
+            raise CapeError(
+                f"{path}: reference raceline missing; build it with `snakemake --cores 1 {path}`"
+            )
+        with np.load(path) as npz:
+            x, y, speed = npz["x"], npz["y"], npz["speed"]
+    return ReferenceLine(x, y, speed, settings, ts), track
+
+
+@dataclass
+class Run:
+    plant: Plant
+    controller: Controller
+    line: ReferenceLine
+    track: Track
+    disturbances: DisturbancePipeline
+    settings: dict[str, Any]
+    internal: str
+
+    def __call__(self) -> RolloutResult:
+        s = self.settings
+        return run_lap(
+            self.plant,
+            self.controller,
+            self.line,
+            self.track,
+            self.disturbances,
+            horizon=int(s["horizon"]),
+            time_limit=float(s["time_limit"]),
+            vx0=float(s["vx0"]),
+            penalty=s["penalty"],
+        )
+
+
+def build_run(
+    config: dict[str, Any],
+    plant_name: str,
+    controller_name: str,
+    eta: float,
+    seed: int,
+    internal: str | None,
+    models_dir: Path,
+    raceline: str | None = None,
+) -> Run:
+    """Everything one run needs, from names; errors name the missing piece and the fix."""
+    models = section(config, "models")
+    controllers = section(config, "controllers")
+    ts = float(section(config, "data")["ts"])
+    kind, model_name = parse_plant(plant_name, models)
+    if controller_name not in controllers:
+        known = ", ".join(controllers)
+        raise CapeError(
+            f"--controller {controller_name}: not in the config's `controllers` ({known})"
+        )
+    line, track = load_reference(config, raceline)
+    disturbances = DisturbancePipeline.from_config(section(config, "disturbances"), eta, seed)
+    transform = disturbances.plant_params
+    if kind == "truth":
+        plant: Plant = TruthPlant(GROUND_TRUTH.as_dict(), ts, transform)
+    else:
+        model = load_model(models_dir / str(model_name), expected_name=model_name)
+        if kind == "learned":
+            plant = LearnedPlant(model, transform)
+        else:
+            frozen_path = models_dir / str(model_name) / "frozen_phi.json"
+            if not frozen_path.is_file():
+                raise CapeError(
+                    f"{frozen_path}: missing; build it with `snakemake --cores 1 {frozen_path}`"
+                )
+            plant = FixedParameterPlant(
+                model, json.loads(frozen_path.read_text())["phi"], transform
+            )
+    cls = controller_class(controller_name, controllers[controller_name])
+    controller = cls(controllers[controller_name], line, ACTUATOR_LIMITS, ts)
+    default_internal = (
+        "truth" if kind == "truth" else f"{model_name}{'-fixed' if kind == 'fixed' else ''}"
+    )
+    return Run(
+        plant=plant,
+        controller=controller,
+        line=line,
+        track=track,
+        disturbances=disturbances,
+        settings=section(config, "rollout"),
+        internal=internal or default_internal,
+    )

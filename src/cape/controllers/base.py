@@ -1,0 +1,95 @@
+"""The controller interface (SPEC §7) and the pieces the feedback laws share.
+
+Every controller sees the measured state and the shared reference (SPEC §5.2), returns a
+command ``[T, δ]`` inside the actuator limits and steering rate of SPEC §1, and says what it
+needs of an internal model (PID and RISE need none).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from cape.closedloop.reference import ReferenceLine, ReferencePoints
+from cape.tracks.geometry import Projection
+from cape.vehicle.params import ActuatorLimits
+
+
+def wrap_angle(a: float) -> float:
+    """Angle folded into [−π, π)."""
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+def cross_track_error(x: float, y: float, x_ref: float, y_ref: float, psi_ref: float) -> float:
+    """The paper's e_cte: positive when the car is left of the line (SPEC §5.3)."""
+    return (y - y_ref) * math.cos(psi_ref) - (x - x_ref) * math.sin(psi_ref)
+
+
+@dataclass
+class PIDLoop:
+    """One PID loop with a clamped integrator (anti-windup) and a saturated output."""
+
+    kp: float
+    ki: float
+    kd: float
+    i_max: float  # largest |ki·∫e| (output units)
+    ts: float
+    integral: float = 0.0
+    previous: float | None = None
+
+    def reset(self) -> None:
+        self.integral, self.previous = 0.0, None
+
+    def step(self, error: float) -> float:
+        if self.ki > 0:
+            bound = self.i_max / self.ki
+            self.integral = min(max(self.integral + error * self.ts, -bound), bound)
+        derivative = 0.0 if self.previous is None else (error - self.previous) / self.ts
+        self.previous = error
+        return self.kp * error + self.ki * self.integral + self.kd * derivative
+
+    @classmethod
+    def from_config(cls, gains: dict[str, float], ts: float, kp: float | None = None) -> PIDLoop:
+        return cls(
+            kp=float(gains["kp"] if kp is None else kp),
+            ki=float(gains["ki"]),
+            kd=float(gains["kd"]),
+            i_max=float(gains["i_max"]),
+            ts=ts,
+        )
+
+
+class Controller:
+    """Base class: limits, the previous command, and the interface the rollout calls."""
+
+    name: ClassVar[str] = "?"
+    needs_internal_model: ClassVar[bool] = False
+
+    def __init__(
+        self, settings: dict[str, Any], line: ReferenceLine, limits: ActuatorLimits, ts: float
+    ) -> None:
+        self.settings = settings
+        self.line = line
+        self.limits = limits
+        self.ts = ts
+        self.u_prev = np.zeros(2)
+
+    def reset(self, z0: np.ndarray) -> None:
+        self.u_prev = np.zeros(2)
+
+    def command(self, z: np.ndarray, proj: Projection, ref: ReferencePoints) -> np.ndarray:
+        """The raw command for measured state ``z``; ``step`` applies the limits."""
+        raise NotImplementedError
+
+    def step(
+        self, z: np.ndarray, proj: Projection, ref: ReferencePoints
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """The command, saturated and rate-limited, and what the controller reports."""
+        u = self.limits.clip(
+            self.command(z, proj, ref), delta_prev=float(self.u_prev[1]), ts=self.ts
+        )
+        self.u_prev = u
+        return u, {}
