@@ -1,0 +1,190 @@
+"""Closed-loop runs (SPEC §5, §7.1–7.2): laps, failures, determinism, the command line."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cape.cli import main
+from cape.closedloop.disturbances import DisturbancePipeline
+from cape.closedloop.plants import TruthPlant
+from cape.closedloop.reference import ReferenceLine
+from cape.closedloop.rollout import initial_state, run_lap
+from cape.controllers import controller_class
+from cape.controllers.base import Controller
+from cape.tracks.raceline import build_raceline
+from cape.tracks.track import load_track
+from cape.vehicle import ACTUATOR_LIMITS, GROUND_TRUTH
+
+TS = 0.02
+
+
+@pytest.fixture(scope="module")
+def setting(track_dir, config):
+    entry = config["tracks"]["catalogue"]["ETHZMobil"]
+    track = load_track(track_dir, "ETHZMobil", entry["prefix"], entry["width"])
+    rl = build_raceline(track, config["reference"], GROUND_TRUTH, ACTUATOR_LIMITS)
+    return track, ReferenceLine(rl.x, rl.y, rl.speed, config["reference"], TS)
+
+
+def _run(config, setting, controller, plant=None, eta=0.0, seed=0):
+    track, line = setting
+    dist = DisturbancePipeline.from_config(config["disturbances"], eta, seed)
+    plant = plant or TruthPlant(GROUND_TRUTH.as_dict(), TS, dist.plant_params)
+    r = config["rollout"]
+    limits = {
+        "horizon": r["horizon"],
+        "time_limit": r["time_limit"],
+        "vx0": r["vx0"],
+        "penalty": r["penalty"],
+    }
+    return run_lap(plant, controller, line, track, dist, **limits)
+
+
+@pytest.mark.parametrize("name", ["pid", "rise"])
+def test_pid_and_rise_lap_the_ground_truth_plant(config, setting, name: str) -> None:
+    """SPEC §7 sanity rule; the prototype lapped in 7.40 s (PID) and 7.46 s (RISE)."""
+    controller = controller_class(name)(
+        config["controllers"][name], setting[1], ACTUATOR_LIMITS, TS
+    )
+    result = _run(config, setting, controller)
+    m = result.metrics
+    assert m["success"] and m["failure"] is None
+    assert 7.0 < m["lap_time"] < 8.0
+    assert m["mean_abs_ey"] < 0.05
+    assert np.all(np.abs(result.series["delta_cmd"]) <= 0.35 + 1e-12)
+    assert np.all(np.abs(np.diff(result.series["delta_cmd"])) <= 0.1 + 1e-12)  # 5 rad/s
+    assert result.series["T_cmd"].min() >= -0.1 and result.series["T_cmd"].max() <= 1.0
+
+
+class _Constant(Controller):
+    """A controller that always commands the same input."""
+
+    def __init__(self, u, setting_line) -> None:
+        super().__init__({}, setting_line, ACTUATOR_LIMITS, TS)
+        self.u = np.asarray(u, dtype=float)
+
+    def command(self, z, proj, ref):
+        return self.u
+
+
+def test_steering_off_the_track_fails_at_the_right_step(config, setting) -> None:
+    track, line = setting
+    result = _run(config, setting, _Constant([0.5, 0.35], line))
+    assert result.metrics["failure"] == "off_track" and not result.metrics["success"]
+    # replay the same inputs on the same plant: the first step outside the half width
+    plant = TruthPlant(GROUND_TRUTH.as_dict(), TS)
+    plant.reset(initial_state(line, 1.0))
+    delta, step = 0.0, 0
+    while True:
+        delta = min(delta + 0.1, 0.35)  # the steering rate limit
+        x = plant.step(np.array([0.5, delta]))
+        step += 1
+        if abs(track.center.project(x[0], x[1]).offset) > track.width / 2:
+            break
+    assert result.metrics["steps"] == step
+    assert (
+        result.metrics["lap_time_penalised"] == 15.0
+        and result.metrics["mean_abs_ey_penalised"] == 0.23
+    )
+
+
+class _NaNPlant:
+    ts = TS
+
+    def __init__(self, at: int) -> None:
+        self.at, self.k = at, 0
+
+    def reset(self, x0):
+        self.x, self.k = np.asarray(x0, dtype=float), 0
+
+    def step(self, u):
+        self.k += 1
+        return np.full(6, np.nan) if self.k == self.at else self.x.copy()
+
+
+def test_a_non_finite_state_is_a_diverged_run(config, setting) -> None:
+    result = _run(config, setting, _Constant([0.0, 0.0], setting[1]), plant=_NaNPlant(at=5))
+    assert result.metrics["failure"] == "diverged" and result.metrics["steps"] == 5
+
+
+def test_a_run_that_never_finishes_times_out_at_15_s(config, setting) -> None:
+    result = _run(config, setting, _Constant([0.0, 0.0], setting[1]), plant=_NaNPlant(at=10**9))
+    assert result.metrics["failure"] == "timeout"
+    assert result.metrics["steps"] == 750 and result.series["t"][-1] == pytest.approx(15.0)
+
+
+def test_eta_zero_identical_for_every_seed_and_seeds_differ_at_eta_two(config, setting) -> None:
+    def series(eta: float, seed: int) -> np.ndarray:
+        c = controller_class("pid")(config["controllers"]["pid"], setting[1], ACTUATOR_LIMITS, TS)
+        return _run(config, setting, c, eta=eta, seed=seed).series["X"]
+
+    np.testing.assert_array_equal(series(0.0, 0), series(0.0, 1))
+    a, b = series(2.0, 0), series(2.0, 1)
+    assert a.shape != b.shape or not np.array_equal(a, b)
+    np.testing.assert_array_equal(series(2.0, 0), a)
+
+
+def test_cli_rollout_is_byte_identical_when_repeated(
+    tmp_path: Path, track_dir: Path, config
+) -> None:
+    cfg = json.loads(json.dumps({k: config[k] for k in config}))
+    cfg["tracks"]["dir"] = str(track_dir)
+    raceline = tmp_path / "line.npz"
+    rl = build_raceline(
+        load_track(track_dir, "ETHZMobil", "ethzMobil", 0.46),
+        config["reference"],
+        GROUND_TRUTH,
+        ACTUATOR_LIMITS,
+    )
+    np.savez(raceline, x=rl.x, y=rl.y, speed=rl.speed)
+    outs = []
+    for i in range(2):
+        out = tmp_path / f"run{i}"
+        args = ["rollout", "--plant", "truth", "--controller", "rise", "--eta", "0", "--seed", "3"]
+        args += ["--out", str(out), "--raceline", str(raceline), "--config-json", json.dumps(cfg)]
+        assert main(args) == 0
+        outs.append(out)
+    assert (outs[0] / "metrics.json").read_bytes() == (outs[1] / "metrics.json").read_bytes()
+    metrics = json.loads((outs[0] / "metrics.json").read_text())
+    for key in (
+        "success",
+        "lap_time",
+        "failure",
+        "mean_abs_ex",
+        "mean_abs_ey",
+        "mean_speed",
+        "steps",
+    ):
+        assert key in metrics
+    assert "solve_ms_median" in json.loads((outs[0] / "timing.json").read_text())
+    frame = pd.read_parquet(outs[0] / "timeseries.parquet")
+    assert len(frame) == metrics["steps"] and {"vx", "vy", "omega", "T_cmd", "delta_cmd"} <= set(
+        frame.columns
+    )
+
+
+def test_cli_rollout_rejects_unknown_names(capsys) -> None:
+    assert (
+        main(
+            [
+                "rollout",
+                "--plant",
+                "gpt",
+                "--controller",
+                "pid",
+                "--eta",
+                "0",
+                "--seed",
+                "0",
+                "--out",
+                "x",
+            ]
+        )
+        == 2
+    )
+    assert "--plant gpt: expected truth" in capsys.readouterr().err
