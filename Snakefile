@@ -18,6 +18,7 @@ include: "workflow/rules/tracks.smk"
 include: "workflow/rules/data.smk"
 include: "workflow/rules/models.smk"
 include: "workflow/rules/reference.smk"
+include: "workflow/rules/rollouts.smk"
 include: "workflow/rules/figures.smk"
 
 

@@ -207,6 +207,37 @@ def cmd_rollout(args: argparse.Namespace) -> None:
     print(f"{run_name}: {status}, lap time {metrics['lap_time']}")
 
 
+def cmd_plot_rollout(args: argparse.Namespace) -> None:
+    import json
+
+    import pandas as pd
+
+    from cape.closedloop.setup import load_reference
+    from cape.plots.rollout import plot_rollout
+    from cape.plots.style import save_figure
+
+    config = _config(args)
+    run = Path(args.run)
+    metrics_path = run / "metrics.json"
+    if not metrics_path.is_file():
+        raise CapeError(f"{metrics_path}: missing; run `snakemake --cores 1 {metrics_path}` first")
+    metrics = json.loads(metrics_path.read_text())
+    series = pd.read_parquet(run / "timeseries.parquet")
+    line, track = load_reference(config, args.raceline)
+    outcome = (
+        f"lap {metrics['lap_time']:.2f} s"
+        if metrics["success"]
+        else f"failed: {metrics['failure']}"
+    )
+    title = (
+        f"plant {metrics['plant']}, controller {metrics['controller']} "
+        f"(internal {metrics['internal']}), "
+        f"η = {metrics['eta']}, seed {metrics['seed']}: {outcome}"
+    )
+    save_figure(plot_rollout(track, line.path.x, line.path.y, series, title), *args.out)
+    print("wrote " + ", ".join(args.out))
+
+
 # --- cape train ----------------------------------------------------------------------------
 def _model_spec(config: dict[str, Any], name: str) -> dict[str, Any]:
     from cape.config import section
@@ -516,6 +547,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--raceline", help="reference .npz (default: results/raceline/<track>.npz)")
     _add_config_args(p)
     p.set_defaults(func=cmd_rollout)
+
+    p = sub.add_parser(
+        "plot-rollout", help="figure of one run: path on the track and the five signals"
+    )
+    p.add_argument("--run", required=True, help="a run folder (metrics.json, timeseries.parquet)")
+    p.add_argument(
+        "--out", action="append", required=True, metavar="PATH", help=".pdf or .png (repeat)"
+    )
+    p.add_argument("--raceline", help="reference .npz (default: results/raceline/<track>.npz)")
+    _add_config_args(p)
+    p.set_defaults(func=cmd_plot_rollout)
 
     p = sub.add_parser("train", help="train a learned model on the ETHZ windows (SPEC §4)")
     p.add_argument(

@@ -20,9 +20,19 @@ DATA_TRACKS = sorted(config["data"]["tracks"])
 MODELS = list(config["models"])
 
 
+PLANT_NAMES = ["truth", *MODELS, *(f"{m}-fixed" for m in MODELS)]
+ETAS = config["disturbances"]["eta"]
+
+
 wildcard_constraints:
     track="|".join(sorted(config["tracks"]["catalogue"])),
     model="|".join(MODELS),
+    study="|".join(sorted(config["study"]["studies"])),
+    plant="|".join(PLANT_NAMES),
+    internal="|".join(PLANT_NAMES),
+    controller="|".join(sorted(config["controllers"])),
+    eta=r"[0-9]+(\.[0-9]+)?",
+    seed=r"[0-9]+",
 
 
 def track_files():
@@ -68,6 +78,48 @@ def trained_models():
 def model_args():
     """``--model NAME=DIR`` for every configured model."""
     return " ".join(f"--model {m}={model_dir(m)}" for m in MODELS)
+
+
+def raceline_path():
+    return f"results/raceline/{config['reference']['track']}.npz"
+
+
+def rollout_inputs(wildcards):
+    """What one run reads: the reference line and the plant's trained model (if any)."""
+    inputs = {"raceline": raceline_path()}
+    plant = wildcards.plant
+    if plant != "truth":
+        model = plant.removesuffix("-fixed")
+        inputs["weights"] = f"{model_dir(model)}/model.pt"
+        inputs["meta"] = f"{model_dir(model)}/meta.json"
+        if plant.endswith("-fixed"):
+            inputs["frozen"] = f"{model_dir(model)}/frozen_phi.json"
+    return inputs
+
+
+def rollout_config_json(controller):
+    """What a run reads: the track data, the reference, the disturbances, the run settings,
+    the models and this controller's gains."""
+    sections = {k: config[k] for k in ("tracks", "data", "reference", "disturbances", "rollout", "models")}
+    sections["controllers"] = {controller: config["controllers"][controller]}
+    return json.dumps(sections, sort_keys=True)
+
+
+def rollout_targets():
+    """metrics.json of every run of the grid."""
+    targets = []
+    seeds = range(config["study"]["seeds"])
+    for study, grid in config["study"]["studies"].items():
+        for plant in grid["plants"]:
+            internals = grid.get("internal") or [plant]
+            for controller in grid["controllers"]:
+                for internal in internals:
+                    for eta in grid.get("eta", ETAS):
+                        for seed in seeds:
+                            targets.append(
+                                f"results/runs/{study}/{plant}/{internal}/{controller}/eta{eta}/seed{seed}/metrics.json"
+                            )
+    return targets
 
 
 def dataset_path(track):
