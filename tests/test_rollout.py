@@ -188,3 +188,40 @@ def test_cli_rollout_rejects_unknown_names(capsys) -> None:
         == 2
     )
     assert "--plant gpt: expected truth" in capsys.readouterr().err
+
+
+def test_bayesrace_long_line_is_selectable(config, track_dir) -> None:
+    """The paper's setting runs through the same code; PID cannot lap it (SPEC §2)."""
+    import copy
+
+    from cape.closedloop.setup import build_run
+
+    cfg = copy.deepcopy(config)
+    cfg["reference"]["line"] = "bayesrace_long"
+    cfg["tracks"]["dir"] = str(track_dir)
+    run = build_run(cfg, "truth", "pid", 0.0, 0, None, Path("unused"))
+    assert run.line.path.length > 11.0 and run.line.v_ref(0.0) == pytest.approx(
+        1.0
+    )  # starts at rest
+    assert run().metrics["failure"] == "off_track"
+
+
+def test_plot_rollout(tmp_path: Path, track_dir: Path, config, setting) -> None:
+    run = tmp_path / "run"
+    run.mkdir()
+    controller = controller_class("rise")(
+        config["controllers"]["rise"], setting[1], ACTUATOR_LIMITS, TS
+    )
+    result = _run(config, setting, controller)
+    pd.DataFrame(result.series).to_parquet(run / "timeseries.parquet")
+    meta = {"plant": "truth", "controller": "rise", "internal": "truth", "eta": "0", "seed": 0}
+    (run / "metrics.json").write_text(json.dumps({**meta, **result.metrics}))
+    line = tmp_path / "line.npz"
+    np.savez(line, x=setting[1].path.x, y=setting[1].path.y, speed=setting[1].v_path)
+    cfg = {k: config[k] for k in ("tracks", "data", "reference")}
+    cfg = json.loads(json.dumps(cfg))
+    cfg["tracks"]["dir"] = str(track_dir)
+    png = tmp_path / "run.png"
+    args = ["plot-rollout", "--run", str(run), "--raceline", str(line), "--out", str(png)]
+    assert main([*args, "--config-json", json.dumps(cfg)]) == 0
+    assert png.read_bytes().startswith(b"\x89PNG")

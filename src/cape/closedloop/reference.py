@@ -41,7 +41,7 @@ class ReferenceLine:
         self.scale = float(settings["scale"])
         self.v_min, self.v_max = float(settings["v_min"]), float(settings["v_max"])
         self.ts = ts
-        self.window = float(settings.get("projection_window", 0.5))
+        self.window = float(settings["projection_window"])
         self.length = self.path.length
 
     def v_ref(self, s: np.ndarray | float) -> np.ndarray:
