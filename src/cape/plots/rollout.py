@@ -6,6 +6,7 @@ import numpy as np
 import pandas as pd
 
 from cape.plots.style import plt
+from cape.plots.tracks import closed, draw_track
 from cape.tracks.track import Track
 
 SIGNALS = (
@@ -23,23 +24,11 @@ def plot_rollout(
     fig = plt.figure(figsize=(12, 6.2))
     grid = fig.add_gridspec(len(SIGNALS), 2, width_ratios=(1.15, 1.0))
     ax = fig.add_subplot(grid[:, 0])
-    closed = lambda a: np.append(a, a[:1])  # noqa: E731
-    ax.plot(
-        closed(track.inner[0]),
-        closed(track.inner[1]),
-        color="black",
-        lw=1.0,
-        label="track boundary",
-    )
-    ax.plot(closed(track.outer[0]), closed(track.outer[1]), color="black", lw=1.0)
+    draw_track(ax, track, centre=False)
     ax.plot(closed(line_x), closed(line_y), color="0.55", lw=1.0, ls="--", label="reference")
     ax.plot(series["X"], series["Y"], color="tab:blue", lw=1.3, label="car")
     if len(series):
         ax.plot(series["X"].iloc[-1], series["Y"].iloc[-1], "rx", ms=8, label="end")
-    ax.set_aspect("equal")
-    ax.set_xlabel("X (m)")
-    ax.set_ylabel("Y (m)")
-    ax.grid(True, lw=0.3, alpha=0.5)
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=4, frameon=False)
     for i, (key, label) in enumerate(SIGNALS):
         sub = fig.add_subplot(grid[i, 1])
