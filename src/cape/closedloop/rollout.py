@@ -102,7 +102,7 @@ def run_lap(
             failure = "off_track"
             break
         if car.total >= line.length:
-            lap_time = (k + 1) * ts
+            lap_time = round((k + 1) * ts, 9)  # 7.56, not 7.5600000000000005
             break
         proj_seen = seen.update(z[0], z[1])
     else:
