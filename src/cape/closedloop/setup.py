@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from cape.closedloop.disturbances import DisturbancePipeline
+from cape.closedloop.internal import InternalModel, fixed_internal
 from cape.closedloop.plants import FixedParameterPlant, LearnedPlant, Plant, TruthPlant
 from cape.closedloop.reference import ReferenceLine
 from cape.closedloop.rollout import RolloutResult, run_lap
@@ -18,6 +19,7 @@ from cape.controllers import controller_class
 from cape.controllers.base import Controller
 from cape.errors import CapeError
 from cape.models.checkpoint import load_model
+from cape.models.training import build_model
 from cape.tracks.track import Track, load_raceline, load_track
 from cape.vehicle.params import ACTUATOR_LIMITS, GROUND_TRUTH
 
@@ -53,6 +55,30 @@ def load_reference(config: dict[str, Any], raceline: str | None) -> tuple[Refere
         with np.load(path) as npz:
             x, y, speed = npz["x"], npz["y"], npz["speed"]
     return ReferenceLine(x, y, speed, settings, ts), track
+
+
+def build_internal(config: dict[str, Any], name: str, models_dir: Path) -> InternalModel:
+    """The controller's internal model by name: a learned model, ``<model>-fixed`` or ``truth``
+    (the ground-truth parameters in the Deep Dynamics structure)."""
+    models = section(config, "models")
+    ts = float(section(config, "data")["ts"])
+    kind, model_name = parse_plant(name, models)
+    if kind == "truth":
+        structure = "ddm" if "ddm" in models else next(iter(models))
+        model = build_model(structure, models[structure], ts, seed=0)
+        truth = GROUND_TRUTH.as_dict()
+        return fixed_internal(
+            model, {n: truth[n] for n in model.param_names if n in truth}, source="truth"
+        )
+    model = load_model(models_dir / str(model_name), expected_name=model_name)
+    if kind == "learned":
+        return InternalModel(model, "learned")
+    frozen_path = models_dir / str(model_name) / "frozen_phi.json"
+    if not frozen_path.is_file():
+        raise CapeError(
+            f"{frozen_path}: missing; build it with `snakemake --cores 1 {frozen_path}`"
+        )
+    return fixed_internal(model, json.loads(frozen_path.read_text())["phi"])
 
 
 @dataclass
@@ -119,9 +145,19 @@ def build_run(
                 model, json.loads(frozen_path.read_text())["phi"], transform
             )
     cls = controller_class(controller_name, controllers[controller_name])
-    controller = cls(controllers[controller_name], line, ACTUATOR_LIMITS, ts)
     default_internal = (
         "truth" if kind == "truth" else f"{model_name}{'-fixed' if kind == 'fixed' else ''}"
+    )
+    internal_model = None
+    if cls.needs_internal_model:
+        internal_model = build_internal(config, internal or default_internal, models_dir)
+    controller = cls(
+        controllers[controller_name],
+        line,
+        ACTUATOR_LIMITS,
+        ts,
+        track=track,
+        internal=internal_model,
     )
     return Run(
         plant=plant,

@@ -69,12 +69,20 @@ class Controller:
     needs_internal_model: ClassVar[bool] = False
 
     def __init__(
-        self, settings: dict[str, Any], line: ReferenceLine, limits: ActuatorLimits, ts: float
+        self,
+        settings: dict[str, Any],
+        line: ReferenceLine,
+        limits: ActuatorLimits,
+        ts: float,
+        track: Any = None,
+        internal: Any = None,
     ) -> None:
         self.settings = settings
         self.line = line
         self.limits = limits
         self.ts = ts
+        self.track = track  # the Track, for controllers with track constraints
+        self.internal = internal  # an InternalModel, for model-based controllers
         self.u_prev = np.zeros(2)
 
     def reset(self, z0: np.ndarray) -> None:

@@ -7,7 +7,12 @@ from typing import Any
 from cape.registry import Registry
 
 CONTROLLERS: Registry[Any] = Registry(
-    "controller", {"pid": "cape.controllers.pid", "rise": "cape.controllers.rise"}
+    "controller",
+    {
+        "pid": "cape.controllers.pid",
+        "rise": "cape.controllers.rise",
+        "nmpc": "cape.controllers.nmpc",
+    },
 )
 register_controller = CONTROLLERS.register
 controller_class = CONTROLLERS.get

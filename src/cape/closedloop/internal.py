@@ -1,0 +1,113 @@
+"""A controller's internal model (SPEC §7.3): the model's own discrete step, and where its Φ
+comes from.
+
+- ``learned``: Φ is predicted once per step from the controller's own history of measured
+  states and commanded inputs (the plant's window format), held over the horizon;
+- ``fixed``: the frozen Φ of SPEC §4.5;
+- ``truth``: the ground-truth parameters in the Deep Dynamics structure (the ceiling).
+
+The discrete step is the learned models' (Euler velocities, mid-step-heading pose), written on
+the backend-neutral equations, so the NLP and the numeric checks share it. Its state carries
+the last applied input, ``[X, Y, ψ, vx, vy, ω, T_app, δ_app]``, because the Enhanced Physics
+Model's actuator lag makes the applied input a state.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cape.models.base import LearnedModel
+from cape.models.fast import FastPredictor
+from cape.vehicle.backend import ops_for
+
+N_STATE = 8
+
+
+class InternalModel:
+    def __init__(self, model: LearnedModel, source: str, phi: np.ndarray | None = None) -> None:
+        if source not in ("learned", "fixed", "truth"):
+            raise ValueError(f"unknown Φ source {source!r}")
+        self.model = model
+        self.source = source
+        self.ts = model.ts
+        self.throttle_path = model.throttle_path or source != "learned"
+        self.predictor = FastPredictor(model) if source == "learned" else None
+        self.fixed_phi = None if phi is None else np.asarray(phi, dtype=float)
+        self.window = np.zeros((model.history, 7))
+        self.u_prev = np.zeros(2)
+
+    @property
+    def n_phi(self) -> int:
+        return len(self.param_names)
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        if self.source == "learned":
+            return self.model.param_names
+        return tuple(self._fixed_names)
+
+    def reset(self, z0: np.ndarray) -> None:
+        self.window = np.zeros((self.model.history, 7))
+        self.window[:, 0] = z0[3]
+        self.u_prev = np.zeros(2)
+
+    def observe(self, z: np.ndarray, u: np.ndarray) -> None:
+        """Append the row of this step (measured state, the command about to be applied)."""
+        fb = self.u_prev
+        row = np.array([z[3], z[4], z[5], fb[0], fb[1], u[0] - fb[0], u[1] - fb[1]])
+        self.window = np.vstack([self.window[1:], row])
+        self.u_prev = np.asarray(u, dtype=float).copy()
+
+    def phi(self) -> np.ndarray:
+        """Φ for the coming horizon."""
+        if self.predictor is not None:
+            return self.predictor.phi(self.window)
+        assert self.fixed_phi is not None
+        return self.fixed_phi
+
+    def params(self, phi: Any) -> dict[str, Any]:
+        if self.source == "learned":
+            return self.model.physical_params(phi)
+        return self.model.frozen_params({n: phi[i] for i, n in enumerate(self._fixed_names)})
+
+    _fixed_names: tuple[str, ...] = ()
+
+    def step(self, x: Any, u: Any, phi: Any, dhat: Any = None) -> Any:
+        """One step of the 8-state internal model (NumPy or CasADi), optional additive velocity
+        disturbance estimate ``dhat`` (continuous, 3 components)."""
+        p = self.params(phi)
+        fb, cmd = (x[6], x[7]), (u[0], u[1])
+        applied = self.model.applied_inputs(fb, cmd, p)
+        vx, vy, omega = self.model.step_with_params(x[3], x[4], x[5], applied, applied, p)
+        if dhat is not None:
+            vx, vy, omega = (
+                vx + self.ts * dhat[0],
+                vy + self.ts * dhat[1],
+                omega + self.ts * dhat[2],
+            )
+        ops = ops_for(x, u, phi)
+        psi_mid = x[2] + 0.5 * self.ts * omega
+        c, s = ops.cos(psi_mid), ops.sin(psi_mid)
+        return ops.stack(
+            [
+                x[0] + self.ts * (vx * c - vy * s),
+                x[1] + self.ts * (vx * s + vy * c),
+                x[2] + self.ts * omega,
+                vx,
+                vy,
+                omega,
+                applied[0],
+                applied[1],
+            ]
+        )
+
+
+def fixed_internal(
+    model: LearnedModel, frozen: dict[str, float], source: str = "fixed"
+) -> InternalModel:
+    """An internal model with constant Φ (frozen, or the truth)."""
+    internal = InternalModel(model, source, np.array(list(frozen.values()), dtype=float))
+    internal._fixed_names = tuple(frozen)
+    return internal
