@@ -67,13 +67,20 @@ def test_internal_step_is_the_same_on_numpy_and_casadi(cfg) -> None:
         )
 
 
-def test_the_nlp_prediction_is_the_internal_models_own_rollout(cfg) -> None:
+def _first_step(cfg):
+    """A fresh NMPC that has solved its first problem from the start of the lap."""
     run = _run(cfg)
     controller, line = run.controller, run.line
     x0 = initial_state(line, 1.0)
     controller.reset(x0)
     proj = line.project(x0[0], x0[1], None)
-    controller.step(x0, proj, line.points(proj.s, controller.horizon))
+    ref = line.points(proj.s, controller.horizon)
+    controller.step(x0, proj, ref)
+    return controller, x0, proj, ref
+
+
+def test_the_nlp_prediction_is_the_internal_models_own_rollout(cfg) -> None:
+    controller, x0, _, _ = _first_step(cfg)
     w = controller._w
     n = controller.horizon
     xs = w[: controller.n_x].reshape(n + 1, N_STATE)
@@ -109,13 +116,7 @@ def test_default_solver_agrees_with_ipopt_on_a_recorded_run(cfg) -> None:
 
 
 def test_a_failed_solve_falls_back_to_the_previous_plan(cfg) -> None:
-    run = _run(cfg)
-    controller, line = run.controller, run.line
-    x0 = initial_state(line, 1.0)
-    controller.reset(x0)
-    proj = line.project(x0[0], x0[1], None)
-    ref = line.points(proj.s, controller.horizon)
-    controller.step(x0, proj, ref)
+    controller, x0, proj, ref = _first_step(cfg)
     plan = controller._plan.copy()
 
     class _Failing:

@@ -28,6 +28,25 @@ def _add_config_args(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_tracks_dir(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--tracks-dir", help="folder of the verified track files (default: config tracks.dir)"
+    )
+
+
+def _add_outputs(parser: argparse.ArgumentParser, flag: str, what: str) -> None:
+    """A repeatable output flag: one file per format (the suffix chooses it)."""
+    parser.add_argument(
+        flag, action="append", required=True, metavar="PATH", help=f"{what} (repeat)"
+    )
+
+
+def _add_models(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--model", action="append", required=True, metavar="NAME=DIR", help="trained model (repeat)"
+    )
+
+
 def _config(args: argparse.Namespace) -> dict[str, Any]:
     from cape.config import config_from_args
 
@@ -491,9 +510,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--track", required=True, help="track name, e.g. ETHZ or ETHZMobil")
     p.add_argument("--out", required=True, help="output .npz path")
-    p.add_argument(
-        "--tracks-dir", help="folder of the verified track files (default: config tracks.dir)"
-    )
+    _add_tracks_dir(p)
     _add_config_args(p)
     p.set_defaults(func=cmd_data)
 
@@ -505,16 +522,8 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="TRACK=PATH",
         help="a data set to draw (repeat)",
     )
-    p.add_argument(
-        "--out",
-        action="append",
-        required=True,
-        metavar="PATH",
-        help="output file, .pdf or .png (repeat)",
-    )
-    p.add_argument(
-        "--tracks-dir", help="folder of the verified track files (default: config tracks.dir)"
-    )
+    _add_outputs(p, "--out", "output file, .pdf or .png")
+    _add_tracks_dir(p)
     _add_config_args(p)
     p.set_defaults(func=cmd_plot_tracks)
 
@@ -524,9 +533,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--figure", action="append", metavar="PATH", help="figure beside BayesRace's (repeat)"
     )
-    p.add_argument(
-        "--tracks-dir", help="folder of the verified track files (default: config tracks.dir)"
-    )
+    _add_tracks_dir(p)
     _add_config_args(p)
     p.set_defaults(func=cmd_raceline)
 
@@ -552,9 +559,7 @@ def build_parser() -> argparse.ArgumentParser:
         "plot-rollout", help="figure of one run: path on the track and the five signals"
     )
     p.add_argument("--run", required=True, help="a run folder (metrics.json, timeseries.parquet)")
-    p.add_argument(
-        "--out", action="append", required=True, metavar="PATH", help=".pdf or .png (repeat)"
-    )
+    _add_outputs(p, "--out", ".pdf or .png")
     p.add_argument("--raceline", help="reference .npz (default: results/raceline/<track>.npz)")
     _add_config_args(p)
     p.set_defaults(func=cmd_plot_rollout)
@@ -582,51 +587,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_freeze)
 
     p = sub.add_parser("openloop", help="open-loop error table of trained models (SPEC §4.4)")
-    p.add_argument(
-        "--model", action="append", required=True, metavar="NAME=DIR", help="trained model (repeat)"
-    )
+    _add_models(p)
     p.add_argument(
         "--train-data", required=True, help="ETHZ data set (.npz), for its validation split"
     )
     p.add_argument("--test-data", required=True, help="ETHZMobil data set (.npz)")
-    p.add_argument(
-        "--out", action="append", required=True, metavar="PATH", help=".csv, .md or .tex (repeat)"
-    )
+    _add_outputs(p, "--out", ".csv, .md or .tex")
     _add_config_args(p)
     p.set_defaults(func=cmd_openloop)
 
     p = sub.add_parser("complexity", help="model complexity and inference time table (SPEC §4.4)")
-    p.add_argument(
-        "--model", action="append", required=True, metavar="NAME=DIR", help="trained model (repeat)"
-    )
+    _add_models(p)
     p.add_argument("--data", required=True, help="data set whose windows are timed (.npz)")
-    p.add_argument(
-        "--out", action="append", required=True, metavar="PATH", help=".csv, .md or .tex (repeat)"
-    )
+    _add_outputs(p, "--out", ".csv, .md or .tex")
     _add_config_args(p)
     p.set_defaults(func=cmd_complexity)
 
     p = sub.add_parser(
         "plot-models", help="figures of predicted Φ against the truth, and of training"
     )
-    p.add_argument(
-        "--model", action="append", required=True, metavar="NAME=DIR", help="trained model (repeat)"
-    )
+    _add_models(p)
     p.add_argument("--data", required=True, help="ETHZMobil data set (.npz)")
-    p.add_argument(
-        "--phi-out",
-        action="append",
-        required=True,
-        metavar="PATH",
-        help="Φ figure (.pdf/.png, repeat)",
-    )
-    p.add_argument(
-        "--curves-out",
-        action="append",
-        required=True,
-        metavar="PATH",
-        help="training curves (repeat)",
-    )
+    _add_outputs(p, "--phi-out", "Φ figure, .pdf or .png")
+    _add_outputs(p, "--curves-out", "training curves, .pdf or .png")
     _add_config_args(p)
     p.set_defaults(func=cmd_plot_models)
     return parser

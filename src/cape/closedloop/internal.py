@@ -26,15 +26,20 @@ N_STATE = 8
 
 
 class InternalModel:
-    def __init__(self, model: LearnedModel, source: str, phi: np.ndarray | None = None) -> None:
+    def __init__(
+        self, model: LearnedModel, source: str, fixed: dict[str, float] | None = None
+    ) -> None:
         if source not in ("learned", "fixed", "truth"):
             raise ValueError(f"unknown Φ source {source!r}")
+        if (source == "learned") != (fixed is None):
+            raise ValueError("a learned internal model predicts Φ; the others need fixed values")
         self.model = model
         self.source = source
         self.ts = model.ts
         self.throttle_path = model.throttle_path or source != "learned"
         self.predictor = FastPredictor(model) if source == "learned" else None
-        self.fixed_phi = None if phi is None else np.asarray(phi, dtype=float)
+        self._fixed_names = tuple(fixed or ())
+        self.fixed_phi = None if fixed is None else np.array(list(fixed.values()), dtype=float)
         self.window = np.zeros((model.history, 7))
         self.u_prev = np.zeros(2)
 
@@ -72,8 +77,6 @@ class InternalModel:
             return self.model.physical_params(phi)
         return self.model.frozen_params({n: phi[i] for i, n in enumerate(self._fixed_names)})
 
-    _fixed_names: tuple[str, ...] = ()
-
     def step(self, x: Any, u: Any, phi: Any, dhat: Any = None) -> Any:
         """One step of the 8-state internal model (NumPy or CasADi), optional additive velocity
         disturbance estimate ``dhat`` (continuous, 3 components)."""
@@ -108,6 +111,4 @@ def fixed_internal(
     model: LearnedModel, frozen: dict[str, float], source: str = "fixed"
 ) -> InternalModel:
     """An internal model with constant Φ (frozen, or the truth)."""
-    internal = InternalModel(model, source, np.array(list(frozen.values()), dtype=float))
-    internal._fixed_names = tuple(frozen)
-    return internal
+    return InternalModel(model, source, dict(frozen))
