@@ -68,6 +68,7 @@ def run_lap(
     failure: str | None = None
     lap_time: float | None = None
     steps = 0
+    centre_s = track.center.project(x[0], x[1]).s
     for k in range(max_steps):
         ref = line.points(proj_seen.s, horizon)
         start = time.perf_counter()
@@ -98,7 +99,9 @@ def run_lap(
         reference = (x_ref, y_ref, psi_ref, float(ref.speed[1]))
         errors = (e_x, e_y, e_cte, wrap_angle(psi_path - x[2]))
         _append(rows, (k + 1) * ts, x, z, reference, u_cmd, u_app, errors, solve_ms[-1])
-        if abs(track.center.project(x[0], x[1]).offset) > track.width / 2:
+        on_centre = track.center.project(x[0], x[1], s_hint=centre_s, window=line.window)
+        centre_s = on_centre.s
+        if abs(on_centre.offset) > track.width / 2:
             failure = "off_track"
             break
         if car.total >= line.length:
