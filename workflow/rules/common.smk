@@ -6,6 +6,7 @@ import os
 from snakemake.utils import validate
 
 from cape.config import check_consistency
+from cape.controllers import controller_class
 from cape.tracks.manifest import BAYESRACE_FILES
 
 
@@ -84,16 +85,26 @@ def raceline_path():
     return f"results/raceline/{config['reference']['track']}.npz"
 
 
+def uses_internal_model(controller):
+    """True for a controller that predicts with an internal model (the NMPCs)."""
+    return controller_class(controller, config["controllers"][controller]).needs_internal_model
+
+
 def rollout_inputs(wildcards):
-    """What one run reads: the reference line and the plant's trained model (if any)."""
+    """What one run reads: the reference line, and the trained model (and frozen Φ) of the plant
+    and of the controller's internal model."""
     inputs = {"raceline": raceline_path()}
-    plant = wildcards.plant
-    if plant != "truth":
-        model = plant.removesuffix("-fixed")
-        inputs["weights"] = f"{model_dir(model)}/model.pt"
-        inputs["meta"] = f"{model_dir(model)}/meta.json"
-        if plant.endswith("-fixed"):
-            inputs["frozen"] = f"{model_dir(model)}/frozen_phi.json"
+    names = {"plant": wildcards.plant}
+    if uses_internal_model(wildcards.controller):
+        names["internal"] = wildcards.internal
+    for role, name in names.items():
+        if name == "truth":
+            continue
+        model = name.removesuffix("-fixed")
+        inputs[f"{role}_weights"] = f"{model_dir(model)}/model.pt"
+        inputs[f"{role}_meta"] = f"{model_dir(model)}/meta.json"
+        if name.endswith("-fixed"):
+            inputs[f"{role}_frozen"] = f"{model_dir(model)}/frozen_phi.json"
     return inputs
 
 
@@ -111,8 +122,9 @@ def rollout_targets():
     seeds = range(config["study"]["seeds"])
     for study, grid in config["study"]["studies"].items():
         for plant in grid["plants"]:
-            internals = grid.get("internal") or [plant]
             for controller in grid["controllers"]:
+                # the feedback laws have no internal model: one run per plant (named after it)
+                internals = (grid.get("internal") or [plant]) if uses_internal_model(controller) else [plant]
                 for internal in internals:
                     for eta in grid.get("eta", ETAS):
                         for seed in seeds:

@@ -14,15 +14,18 @@ Model's actuator lag makes the applied input a state.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cape.models.base import LearnedModel
-from cape.models.fast import FastPredictor
 from cape.vehicle.backend import ops_for
+from cape.vehicle.params import GROUND_TRUTH
+
+if TYPE_CHECKING:  # the models pull in PyTorch; a controller's module must stay light to import
+    from cape.models.base import LearnedModel
 
 N_STATE = 8
+DRIVETRAIN = ("Cm1", "Cr0", "Cr2")
 
 
 class InternalModel:
@@ -37,11 +40,18 @@ class InternalModel:
         self.source = source
         self.ts = model.ts
         self.throttle_path = model.throttle_path or source != "learned"
-        self.predictor = FastPredictor(model) if source == "learned" else None
+        if source == "learned":
+            from cape.models.fast import FastPredictor
+
+            self.predictor: Any = FastPredictor(model)
+        else:
+            self.predictor = None
         self._fixed_names = tuple(fixed or ())
         self.fixed_phi = None if fixed is None else np.array(list(fixed.values()), dtype=float)
         self.window = np.zeros((model.history, 7))
         self.u_prev = np.zeros(2)
+        # the drivetrain law's nominal values, the scale of Θ for a model without one (DPM)
+        self.nominal_drivetrain = {n: float(GROUND_TRUTH.as_dict()[n]) for n in DRIVETRAIN}
 
     @property
     def n_phi(self) -> int:
@@ -77,12 +87,40 @@ class InternalModel:
             return self.model.physical_params(phi)
         return self.model.frozen_params({n: phi[i] for i, n in enumerate(self._fixed_names)})
 
-    def step(self, x: Any, u: Any, phi: Any, dhat: Any = None) -> Any:
+    @property
+    def has_drivetrain(self) -> bool:
+        """True when Θ = (Cm1, Cr0, Cr2) are parameters of the model; False when it predicts the
+        longitudinal force itself (DPM), where Θ corrects that force additively."""
+        return all(n in self.params(np.ones(self.n_phi)) for n in DRIVETRAIN)
+
+    def corrected(self, p: dict[str, Any], theta: Any, vx: Any, throttle: Any) -> dict[str, Any]:
+        """The parameters with the drivetrain correction Θ (relative factors, SPEC §7.4)."""
+        if theta is None:
+            return p
+        p = dict(p)
+        if "Cm1" in p:
+            for i, name in enumerate(DRIVETRAIN):
+                p[name] = p[name] * theta[i]
+            return p
+        # DPM: the same relative factors act on the drivetrain law at its nominal values,
+        # added to the predicted force
+        cm1, cr0, cr2 = (self.nominal_drivetrain[n] for n in DRIVETRAIN)
+        p["Frx"] = (
+            p["Frx"]
+            + (theta[0] - 1) * cm1 * throttle
+            - (theta[1] - 1) * cr0
+            - (theta[2] - 1) * cr2 * vx**2
+        )
+        return p
+
+    def step(self, x: Any, u: Any, phi: Any, dhat: Any = None, theta: Any = None) -> Any:
         """One step of the 8-state internal model (NumPy or CasADi), optional additive velocity
-        disturbance estimate ``dhat`` (continuous, 3 components)."""
+        disturbance estimate ``dhat`` (continuous, 3 components) and drivetrain factors
+        ``theta`` (SPEC §7.4)."""
         p = self.params(phi)
         fb, cmd = (x[6], x[7]), (u[0], u[1])
         applied = self.model.applied_inputs(fb, cmd, p)
+        p = self.corrected(p, theta, x[3], applied[0])
         vx, vy, omega = self.model.step_with_params(x[3], x[4], x[5], applied, applied, p)
         if dhat is not None:
             vx, vy, omega = (

@@ -68,16 +68,18 @@ def run_lap(
     failure: str | None = None
     lap_time: float | None = None
     steps = 0
+    fallbacks = 0
     centre_s = track.center.project(x[0], x[1]).s
     for k in range(max_steps):
         ref = line.points(proj_seen.s, horizon)
         start = time.perf_counter()
         try:
-            u_cmd, _info = controller.step(z, proj_seen, ref)
+            u_cmd, info = controller.step(z, proj_seen, ref)
         except FloatingPointError:
             failure = "diverged"
             break
         solve_ms.append((time.perf_counter() - start) * 1e3)
+        fallbacks += bool(info.get("fallback", False))
         if not np.all(np.isfinite(u_cmd)):
             failure = "diverged"
             break
@@ -112,6 +114,7 @@ def run_lap(
         failure = "timeout"
     series = {key: np.asarray(values, dtype=float) for key, values in rows.items()}
     metrics = summarise(series, failure, lap_time, steps, time_limit, penalty)
+    metrics["fallbacks"] = fallbacks  # steps whose solve failed (model-based controllers)
     return RolloutResult(metrics=metrics, series=series, solve_ms=np.asarray(solve_ms))
 
 

@@ -17,6 +17,7 @@ from cape.closedloop.rollout import RolloutResult, run_lap
 from cape.config import section
 from cape.controllers import controller_class
 from cape.controllers.base import Controller
+from cape.controllers.ekf import NoiseLevels
 from cape.errors import CapeError
 from cape.models.checkpoint import load_model
 from cape.models.training import build_model
@@ -151,6 +152,9 @@ def build_run(
     internal_model = None
     if cls.needs_internal_model:
         internal_model = build_internal(config, internal or default_internal, models_dir)
+    extra: dict[str, Any] = {}
+    if cls.needs_noise_levels:
+        extra["levels"] = NoiseLevels.from_pipeline(disturbances)
     controller = cls(
         controllers[controller_name],
         line,
@@ -158,6 +162,7 @@ def build_run(
         ts,
         track=track,
         internal=internal_model,
+        **extra,
     )
     return Run(
         plant=plant,

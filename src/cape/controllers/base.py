@@ -67,6 +67,9 @@ class Controller:
 
     name: ClassVar[str] = "?"
     needs_internal_model: ClassVar[bool] = False
+    needs_noise_levels: ClassVar[bool] = False
+    """True for a controller whose design uses the run's disturbance sizes (the robust NMPC's
+    EKF); it then receives ``levels=NoiseLevels`` as a keyword."""
 
     def __init__(
         self,

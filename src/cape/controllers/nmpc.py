@@ -1,9 +1,12 @@
-"""Nominal NMPC (SPEC §7.3) in CasADi.
+"""Nominal NMPC (SPEC §7.3) in CasADi, and the base of the adaptive and robust variants.
 
 Multiple shooting over N steps with the internal model's own discrete step (Euler velocities,
-mid-step pose, the applied input as a state). Φ, the initial state, the previous input, the
-reference points, the track constraint's centre points and normals, the constraint's bound and
-an additive disturbance estimate are NLP *parameters*: the NLP is built once per run and each
+mid-step pose, the applied input as a state). The decision variables are ordered stage by stage,
+``[x_0, u_0, ε_1, x_1, u_1, ε_2, …, x_N]``, and so are the constraints, so the QP's KKT matrix is
+banded and the sparse QP solver's factorisation stays cheap. The initial state is fixed through
+the bounds of x_0. Φ, the previous input, the reference points, the track constraint's centre
+points and normals, the constraint's bound, an additive disturbance estimate d̂ (SPEC §7.5) and
+the drivetrain factors Θ (SPEC §7.4) are NLP *parameters*: the NLP is built once per run and each
 solve is warm-started from the shifted previous solution.
 
 Cost Σ_{k=1..N} ‖p_k − p_ref,k‖²_Q + Σ_{k=0..N−1} ‖Δu_k‖²_R + Σ (w1·ε_k + w2·ε_k²), with soft
@@ -23,9 +26,13 @@ import numpy as np
 from cape.closedloop.internal import N_STATE
 from cape.closedloop.reference import ReferencePoints
 from cape.controllers.base import Controller, PIDLoop
+from cape.controllers.compiled import make_nlpsol
 from cape.controllers.registry import register_controller
 from cape.errors import CapeError
 from cape.tracks.geometry import Projection
+
+N_INPUT = 2
+STAGE = N_STATE + N_INPUT + 1  # x_k, u_k, ε_{k+1}
 
 
 @register_controller("nmpc")
@@ -38,6 +45,7 @@ class NominalNMPC(Controller):
             raise CapeError(f"controller {self.name} needs an internal model and the track")
         self.horizon = int(self.settings["horizon"])
         self._prepare_track_lookup()
+        self._index()
         self._build()
 
     # --- the track constraint's geometry, precomputed along the reference line ----------------
@@ -60,66 +68,114 @@ class NominalNMPC(Controller):
         )
         return self._centre[idx], self._normal[idx]
 
+    # --- where each variable lives in the decision vector ---------------------------------------
+    def _index(self) -> None:
+        n = self.horizon
+        base = np.arange(n) * STAGE
+        self._ix = np.vstack([base[:, None] + np.arange(N_STATE), n * STAGE + np.arange(N_STATE)])
+        self._iu = base[:, None] + N_STATE + np.arange(N_INPUT)
+        self._ie = base + N_STATE + N_INPUT
+        self.n_w = n * STAGE + N_STATE
+
+    def states(self, w: np.ndarray) -> np.ndarray:
+        """The predicted states, (N+1) × 8, of a decision vector."""
+        return w[self._ix]
+
+    def inputs(self, w: np.ndarray) -> np.ndarray:
+        """The planned commands, N × 2, of a decision vector."""
+        return w[self._iu]
+
     # --- the NLP, built once -------------------------------------------------------------------
-    def _build(self) -> None:
-        n, nx, internal = self.horizon, N_STATE, self.internal
-        s = self.settings
-        X = ca.SX.sym("X", nx, n + 1)
-        U = ca.SX.sym("U", 2, n)
-        E = ca.SX.sym("E", n)
-        x0 = ca.SX.sym("x0", nx)
-        phi = ca.SX.sym("phi", internal.n_phi)
-        u_prev = ca.SX.sym("u_prev", 2)
-        ref = ca.SX.sym("ref", 2, n)
-        centre = ca.SX.sym("centre", 2, n)
-        normal = ca.SX.sym("normal", 2, n)
-        bound = ca.SX.sym("bound")
-        dhat = ca.SX.sym("dhat", 3)
+    def _symbols(self) -> dict[str, ca.SX]:
+        n = self.horizon
+        return {
+            "phi": ca.SX.sym("phi", self.internal.n_phi),
+            "u_prev": ca.SX.sym("u_prev", N_INPUT),
+            "ref": ca.SX.sym("ref", 2, n),
+            "centre": ca.SX.sym("centre", 2, n),
+            "normal": ca.SX.sym("normal", 2, n),
+            "bound": ca.SX.sym("bound"),
+            "dhat": ca.SX.sym("dhat", 3),
+            "theta": ca.SX.sym("theta", 3),
+        }
+
+    def nlp(self) -> dict[str, Any]:
+        """The NLP as CasADi expressions, with the bounds of its constraints."""
+        n, internal, s = self.horizon, self.internal, self.settings
+        w = ca.SX.sym("w", self.n_w)
+        p = self._symbols()
         q, r_t, r_d = float(s["Q"]), float(s["R"][0]), float(s["R"][1])
         w1, w2 = float(s["slack_penalty"][0]), float(s["slack_penalty"][1])
-        cost = 0
-        g = [X[:, 0] - x0]
-        lbg, ubg = [np.zeros(nx)], [np.zeros(nx)]
         step_max = self.limits.max_steering_step(self.ts)
+        cost = 0
+        g, lbg, ubg = [], [], []
         for k in range(n):
-            g.append(X[:, k + 1] - internal.step(X[:, k], U[:, k], phi, dhat))
-            lbg.append(np.zeros(nx))
-            ubg.append(np.zeros(nx))
-            du = U[:, k] - (u_prev if k == 0 else U[:, k - 1])
+            x, u, e = w[self._ix[k]], w[self._iu[k]], w[self._ie[k]]
+            x_next = w[self._ix[k + 1]]
+            g.append(x_next - internal.step(x, u, p["phi"], p["dhat"], p["theta"]))
+            lbg += [0.0] * N_STATE
+            ubg += [0.0] * N_STATE
+            du = u - (p["u_prev"] if k == 0 else w[self._iu[k - 1]])
             cost += r_t * du[0] ** 2 + r_d * du[1] ** 2
             g.append(du[1])
-            lbg.append([-step_max])
-            ubg.append([step_max])
-            p = X[0:2, k + 1]
-            cost += q * ca.sumsqr(p - ref[:, k]) + w1 * E[k] + w2 * E[k] ** 2
-            offset = ca.dot(normal[:, k], p - centre[:, k])
-            g += [offset - E[k] - bound, -offset - E[k] - bound]
-            lbg += [[-np.inf], [-np.inf]]
-            ubg += [[0.0], [0.0]]
-        w = ca.vertcat(ca.vec(X), ca.vec(U), E)
-        params = ca.vertcat(
-            x0, phi, u_prev, ca.vec(ref), ca.vec(centre), ca.vec(normal), bound, dhat
-        )
-        nlp = {"x": w, "f": cost, "g": ca.vertcat(*g), "p": params}
-        self.solver = self._solver(nlp, str(s["solver"]))
-        self._lbg = np.concatenate([np.ravel(np.asarray(v, dtype=float)) for v in lbg])
-        self._ubg = np.concatenate([np.ravel(np.asarray(v, dtype=float)) for v in ubg])
-        self.n_w = w.shape[0]
-        self.n_x = nx * (n + 1)
-        self.n_u = 2 * n
+            lbg.append(-step_max)
+            ubg.append(step_max)
+            pos = x_next[0:2]
+            cost += q * ca.sumsqr(pos - p["ref"][:, k]) + w1 * e + w2 * e**2
+            offset = ca.dot(p["normal"][:, k], pos - p["centre"][:, k])
+            g += [offset - e - p["bound"], -offset - e - p["bound"]]
+            lbg += [-np.inf, -np.inf]
+            ubg += [0.0, 0.0]
+        params = ca.vertcat(*[ca.vec(v) for v in p.values()])
+        self._param_sizes = {k: v.numel() for k, v in p.items()}
+        return {
+            "problem": {"x": w, "f": cost, "g": ca.vertcat(*g), "p": params},
+            "lbg": np.array(lbg, dtype=float),
+            "ubg": np.array(ubg, dtype=float),
+        }
+
+    def _build(self) -> None:
+        built = self.nlp()
+        self.solver = self._solver(built["problem"], str(self.settings["solver"]))
+        self._prepare = self._wrap(self.solver, built["lbg"], built["ubg"])
+
+    def _wrap(self, solver: ca.Function, lbg: np.ndarray, ubg: np.ndarray) -> ca.Function:
+        """The solver's call for one step, with the warm start and the bounds formed by one
+        compiled-in-CasADi function: (previous solution, x0, throttle bounds) → (initial guess,
+        lbx, ubx). The solution and multipliers stay CasADi matrices between steps and the
+        constant constraint bounds are converted once: converting arrays at the Python boundary
+        would cost more than the compiled NLP functions themselves."""
+        n, nw = self.horizon, self.n_w
+        w_prev, x0 = ca.SX.sym("w_prev", nw), ca.SX.sym("x0", N_STATE)
+        throttle = ca.SX.sym("throttle", 2)  # lower and upper bound of every T_k
+        ix, iu = self._ix, self._iu
+        guess = ca.SX.zeros(nw)
+        for k in range(n + 1):  # x_0 ← x0, x_k ← x_{k+1} (the last one repeated)
+            source = x0 if k == 0 else w_prev[ix[min(k + 1, n)]]
+            guess[ix[k]] = source
+        for k in range(n):
+            guess[iu[k]] = w_prev[iu[min(k + 1, n - 1)]]
+        lim = self.limits
+        lbx, ubx = ca.SX(np.full(nw, -np.inf)), ca.SX(np.full(nw, np.inf))
+        lbx[iu[:, 1]], ubx[iu[:, 1]] = -lim.delta_max, lim.delta_max
+        lbx[iu[:, 0]], ubx[iu[:, 0]] = throttle[0], throttle[1]
+        lbx[ix[0]], ubx[ix[0]] = x0, x0
+        lbx[self._ie] = 0.0
+        self._lbg_dm, self._ubg_dm = ca.DM(lbg), ca.DM(ubg)
+        return ca.Function("nmpc_prepare", [w_prev, x0, throttle], [guess, lbx, ubx])
 
     def _solver(self, nlp: dict[str, Any], name: str) -> ca.Function:
         s = self.settings
         if name == "ipopt":
-            opts = {
+            opts: dict[str, Any] = {
                 "ipopt.print_level": 0,
                 "ipopt.sb": "yes",
                 "ipopt.max_iter": int(s["ipopt_max_iter"]),
                 "ipopt.warm_start_init_point": "yes",
                 "print_time": False,
             }
-            return ca.nlpsol("nmpc", "ipopt", nlp, opts)
-        if name == "sqp":
+            plugin = "ipopt"
+        elif name == "sqp":
             opts = {
                 "qpsol": "qrqp",
                 "qpsol_options": {
@@ -130,61 +186,114 @@ class NominalNMPC(Controller):
                 "hessian_approximation": "exact",
                 "convexify_strategy": "none",
                 "max_iter": int(s["sqp_max_iter"]),
+                "tol_pr": float(s["sqp_tol"]),
+                "tol_du": float(s["sqp_tol"]),
                 "print_header": False,
                 "print_iteration": False,
                 "print_status": False,
                 "print_time": False,
                 "error_on_fail": False,
             }
-            return ca.nlpsol("nmpc", "sqpmethod", nlp, opts)
-        raise CapeError(f"controllers.{self.name}.solver: {name!r} is not one of ipopt, sqp")
+            plugin = "sqpmethod"
+        else:
+            raise CapeError(f"controllers.{self.name}.solver: {name!r} is not one of ipopt, sqp")
+        return make_nlpsol(self.name, plugin, nlp, opts, s.get("compile"))
+
+    # --- what the variants change ----------------------------------------------------------------
+    def estimate(self, z: np.ndarray) -> np.ndarray:
+        """The state the NLP starts from (the robust NMPC filters it)."""
+        return z
+
+    def margin(self) -> float:
+        return float(self.settings["margin"])
+
+    def theta(self) -> np.ndarray:
+        """Drivetrain factors Θ relative to the internal model's own (the adaptive NMPC's)."""
+        return self._theta_one
 
     # --- each step -------------------------------------------------------------------------------
     def reset(self, z0: np.ndarray) -> None:
         super().reset(z0)
         self.internal.reset(z0)
         self.speed = PIDLoop.from_config(self.settings["speed"], self.ts)
-        self._w = None
-        self._lam_x = None
-        self._lam_g = None
+        self._sol: list[ca.DM] | None = None  # solution and multipliers, kept as CasADi matrices
         self._plan: np.ndarray | None = None
         self._last: tuple[np.ndarray, np.ndarray] | None = None
         self.fallbacks = 0
         self.dhat = np.zeros(3)
+        self._theta_one = np.ones(3)
+        self.phi_now: np.ndarray | None = None
 
-    def margin(self) -> float:
-        return float(self.settings["margin"])
+    @property
+    def _w(self) -> np.ndarray | None:
+        """The last solution as an array (None after a failure)."""
+        return None if self._sol is None else self._sol[0].full().ravel()
+
+    def parameters(self, ref: ReferencePoints, phi: np.ndarray) -> np.ndarray:
+        """The NLP's parameter vector for this step."""
+        n = self.horizon
+        centre, normal = self._track_geometry(ref.s[1 : n + 1])
+        return np.concatenate(
+            [
+                phi,
+                self.u_prev,
+                np.column_stack([ref.x[1 : n + 1], ref.y[1 : n + 1]]).ravel(),
+                centre.ravel(),
+                normal.ravel(),
+                [self.track.width / 2 - self.margin()],
+                self.dhat,
+                self.theta(),
+            ]
+        )
+
+    def solve(
+        self, x0: np.ndarray, params: np.ndarray, throttle: tuple[float, float]
+    ) -> tuple[list[ca.DM], bool]:
+        """One NLP solve, warm-started from the previous solution (or x0 and u_prev held)."""
+        if self._sol is None:  # cold start: x0 and the previous input held over the horizon
+            cold = np.zeros(self.n_w)
+            cold[self._ix] = x0
+            cold[self._iu] = self.u_prev
+            guess, lbx, ubx = self._prepare(cold, x0, throttle)
+            guess[self._ix[0]] = x0  # the shift does not apply to a cold start
+            multipliers = {}
+        else:
+            guess, lbx, ubx = self._prepare(self._sol[0], x0, throttle)
+            multipliers = {"lam_x0": self._sol[1], "lam_g0": self._sol[2]}
+        sol = self.solver(
+            x0=guess,
+            p=params,
+            lbx=lbx,
+            ubx=ubx,
+            lbg=self._lbg_dm,
+            ubg=self._ubg_dm,
+            **multipliers,
+        )
+        out = [sol["x"], sol["lam_x"], sol["lam_g"]]
+        return out, bool(self.solver.stats()["success"])
+
+    def throttle_bounds(self, z: np.ndarray, ref: ReferencePoints) -> tuple[float, float]:
+        """(T_min, T_max), or the speed loop's throttle held when the model has no throttle path."""
+        lim = self.limits
+        if self.internal.throttle_path:
+            return lim.T_min, lim.T_max
+        t = float(np.clip(self.speed.step(float(ref.speed[0]) - z[3]), lim.T_min, lim.T_max))
+        return t, t
 
     def step(
         self, z: np.ndarray, proj: Projection, ref: ReferencePoints
     ) -> tuple[np.ndarray, dict[str, Any]]:
+        z = self.estimate(z)
         if self._last is not None:
             self.internal.observe(*self._last)
-        n = self.horizon
         phi = self.internal.phi()
+        self.phi_now = phi
         x0 = np.concatenate([z, self.u_prev])
-        refs = np.vstack([ref.x[1 : n + 1], ref.y[1 : n + 1]])
-        centre, normal = self._track_geometry(ref.s[1 : n + 1])
-        bound = self.track.width / 2 - self.margin()
-        geometry = [refs.ravel(order="F"), centre.T.ravel(order="F"), normal.T.ravel(order="F")]
-        params = np.concatenate([x0, phi, self.u_prev, *geometry, [bound], self.dhat])
-        lbx, ubx = self._bounds(z, ref)
-        w0 = self._initial_guess(x0)
-        args = {"x0": w0, "p": params, "lbx": lbx, "ubx": ubx, "lbg": self._lbg, "ubg": self._ubg}
-        if self._lam_x is not None:
-            args["lam_x0"], args["lam_g0"] = self._lam_x, self._lam_g
-        sol = self.solver(**args)
-        ok = bool(self.solver.stats()["success"])
+        out, ok = self.solve(x0, self.parameters(ref, phi), self.throttle_bounds(z, ref))
         if ok:
-            w = np.array(sol["x"]).ravel()
-            self._w, self._lam_x, self._lam_g = (
-                w,
-                np.array(sol["lam_x"]).ravel(),
-                np.array(sol["lam_g"]).ravel(),
-            )
-            plan = w[self.n_x : self.n_x + self.n_u].reshape(n, 2)
-            self._plan = plan
-            u = plan[0]
+            self._sol = out
+            self._plan = self.inputs(out[0].full().ravel())
+            u = self._plan[0]
         else:
             self.fallbacks += 1
             if self._plan is not None and len(self._plan) > 1:
@@ -192,38 +301,8 @@ class NominalNMPC(Controller):
                 u = self._plan[0]
             else:
                 u = self.u_prev.copy()
-            self._w = self._lam_x = self._lam_g = None
+            self._sol = None
         u = self.limits.clip(u, delta_prev=float(self.u_prev[1]), ts=self.ts)
         self._last = (z.copy(), u.copy())
         self.u_prev = u
         return u, {"fallback": not ok}
-
-    def _bounds(self, z: np.ndarray, ref: ReferencePoints) -> tuple[np.ndarray, np.ndarray]:
-        n = self.horizon
-        lbx = np.full(self.n_w, -np.inf)
-        ubx = np.full(self.n_w, np.inf)
-        lim = self.limits
-        t_low, t_high = lim.T_min, lim.T_max
-        if not self.internal.throttle_path:  # steering only; throttle from the speed loop
-            t_low = t_high = float(
-                np.clip(self.speed.step(float(ref.speed[0]) - z[3]), lim.T_min, lim.T_max)
-            )
-        u_lb = np.tile([t_low, -lim.delta_max], n)
-        u_ub = np.tile([t_high, lim.delta_max], n)
-        lbx[self.n_x : self.n_x + self.n_u] = u_lb
-        ubx[self.n_x : self.n_x + self.n_u] = u_ub
-        lbx[self.n_x + self.n_u :] = 0.0
-        return lbx, ubx
-
-    def _initial_guess(self, x0: np.ndarray) -> np.ndarray:
-        n, nx = self.horizon, N_STATE
-        if self._w is None:
-            xs = np.tile(x0, n + 1)
-            us = np.tile(self.u_prev, n)
-            return np.concatenate([xs, us, np.zeros(n)])
-        w = self._w
-        xs = w[: self.n_x].reshape(n + 1, nx)
-        us = w[self.n_x : self.n_x + self.n_u].reshape(n, 2)
-        xs = np.vstack([x0, xs[2:], xs[-1:]])
-        us = np.vstack([us[1:], us[-1:]])
-        return np.concatenate([xs.ravel(), us.ravel(), np.zeros(n)])

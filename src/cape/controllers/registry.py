@@ -12,6 +12,8 @@ CONTROLLERS: Registry[Any] = Registry(
         "pid": "cape.controllers.pid",
         "rise": "cape.controllers.rise",
         "nmpc": "cape.controllers.nmpc",
+        "anmpc": "cape.controllers.anmpc",
+        "rnmpc": "cape.controllers.rnmpc",
     },
 )
 register_controller = CONTROLLERS.register

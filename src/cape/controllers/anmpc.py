@@ -1,0 +1,93 @@
+"""Adaptive NMPC (SPEC §7.4): the nominal NMPC whose drivetrain parameters are corrected online.
+
+Θ = (Cm1, Cr0, Cr2) are held as factors relative to the internal model's own values (nominal
+Θ = 1). Every ``every`` steps, one gradient step of size α on the mean squared one-step
+prediction error of [vx, vy, ω] over the last ``every`` steps, the gradient by forward finite
+differences with relative step ε, and the result projected onto [low, high]. For a model that
+predicts the longitudinal force itself (DPM), the same factors act on the drivetrain law at its
+nominal values and the difference is added to that force (``InternalModel.corrected``).
+
+The loss and its finite differences are one CasADi function built with the NLP, so an update
+costs one call, not 4·``every`` model steps in Python.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from cape.closedloop.internal import N_STATE
+from cape.closedloop.reference import ReferencePoints
+from cape.controllers.nmpc import NominalNMPC
+from cape.controllers.registry import register_controller
+from cape.tracks.geometry import Projection
+
+
+@register_controller("anmpc")
+class AdaptiveNMPC(NominalNMPC):
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        a = self.settings["adaptive"]
+        self.every = int(a["every"])
+        self.alpha = float(a["alpha"])
+        self.eps = float(a["epsilon"])
+        self.low, self.high = (float(v) for v in a["bounds"])
+        self._adapt = self._build_adaptation()
+
+    def _build_adaptation(self) -> ca.Function:
+        """(states, inputs, Φs, measured next velocities, Θ) → (Θ after one projected
+        gradient step, the loss at Θ)."""
+        m, internal = self.every, self.internal
+        xs = ca.SX.sym("x", N_STATE, m)
+        us = ca.SX.sym("u", 2, m)
+        phis = ca.SX.sym("phi", internal.n_phi, m)
+        vs = ca.SX.sym("v", 3, m)
+        theta = ca.SX.sym("theta", 3)
+
+        def loss(th: ca.SX) -> ca.SX:
+            err = [internal.step(xs[:, j], us[:, j], phis[:, j], None, th)[3:6] - vs[:, j]
+                   for j in range(m)]  # fmt: skip
+            return ca.sumsqr(ca.horzcat(*err)) / (3 * m)
+
+        base = loss(theta)
+        grad = ca.vertcat(
+            *[(loss(theta + self.eps * ca.DM.eye(3)[:, i]) - base) / self.eps for i in range(3)]
+        )
+        updated = ca.fmin(ca.fmax(theta - self.alpha * grad, self.low), self.high)
+        return ca.Function("anmpc_adapt", [xs, us, phis, vs, theta], [updated, base])
+
+    def reset(self, z0: np.ndarray) -> None:
+        super().reset(z0)
+        self.theta_now = np.ones(3)
+        self.losses: list[float] = []
+        self._samples: deque[tuple[np.ndarray, ...]] = deque(maxlen=self.every)
+        self._pending: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._since_update = 0
+
+    def theta(self) -> np.ndarray:
+        return self.theta_now
+
+    def step(
+        self, z: np.ndarray, proj: Projection, ref: ReferencePoints
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        if self._pending is not None:  # the last step's prediction can now be scored
+            x, u, phi = self._pending
+            self._samples.append((x, u, phi, np.asarray(z[3:6], dtype=float)))
+            self._since_update += 1
+            if self._since_update >= self.every and len(self._samples) == self.every:
+                self._update()
+        x_now = np.concatenate([z, self.u_prev])
+        u, info = super().step(z, proj, ref)
+        self._pending = (x_now, u.copy(), np.asarray(self.phi_now, dtype=float))
+        info["theta"] = self.theta_now.copy()
+        return u, info
+
+    def _update(self) -> None:
+        xs, us, phis, vs = (np.column_stack(c) for c in zip(*self._samples, strict=True))
+        theta, loss = self._adapt(xs, us, phis, vs, self.theta_now)
+        self.theta_now = np.asarray(theta, dtype=float).ravel()
+        self.losses.append(float(loss))
+        self._since_update = 0

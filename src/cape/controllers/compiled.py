@@ -1,0 +1,94 @@
+"""NLP solvers whose functions are compiled C, built once per problem structure and cached.
+
+CasADi evaluates an NLP's functions (cost, constraints, their Jacobian and the Lagrangian's
+Hessian) in its SX virtual machine; compiled to C they run several times faster, which is most of
+an NMPC step. Compiling takes seconds, so it must not happen per run: the generated C source is
+hashed, compiled once into ``<cache>/<plugin>_<hash>.so`` (temp file, then rename, so concurrent
+jobs never see half a library) and reused by every later run with the same structure — only
+parameters change between runs. Without a compiler the solver falls back to the SX virtual
+machine and says so once.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import casadi as ca
+
+from cape.errors import CapeError
+
+_warned = False
+
+
+def make_nlpsol(
+    name: str,
+    plugin: str,
+    problem: dict[str, Any],
+    opts: dict[str, Any],
+    compile_settings: dict[str, Any] | None,
+) -> ca.Function:
+    """``ca.nlpsol`` on ``problem``; with ``compile_settings = {enabled, cache, compiler,
+    flags}`` its functions are loaded from a cached compiled library."""
+    solver = ca.nlpsol(name, plugin, problem, opts)
+    if not compile_settings or not compile_settings.get("enabled", False):
+        return solver
+    compiler = str(compile_settings.get("compiler", "gcc"))
+    if shutil.which(compiler) is None:
+        _warn_once(f"compiler {compiler!r} not found; NLP functions run uncompiled (slower)")
+        return solver
+    flags = [str(f) for f in compile_settings.get("flags", ["-O1"])]
+    cache = Path(str(compile_settings.get("cache", "results/solvers")))
+    library = compiled_library(solver, plugin, cache, compiler, flags)
+    return ca.nlpsol(name, plugin, str(library), opts)
+
+
+def compiled_library(
+    solver: ca.Function, plugin: str, cache: Path, compiler: str, flags: list[str]
+) -> Path:
+    """The cached shared library of ``solver``'s NLP functions, compiled when missing."""
+    with tempfile.TemporaryDirectory() as tmp:
+        source = _generate(solver, Path(tmp))
+        text = source.read_bytes()
+        key = hashlib.sha256(text + " ".join([compiler, *flags]).encode()).hexdigest()[:16]
+        library = cache / f"{plugin}_{key}.so"
+        if library.is_file():
+            return library
+        cache.mkdir(parents=True, exist_ok=True)
+        partial = Path(tmp) / library.name
+        cmd = [compiler, *flags, "-fPIC", "-shared", str(source), "-o", str(partial)]
+        done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        if done.returncode != 0:
+            raise CapeError(
+                f"compiling the NLP with `{' '.join(cmd)}` failed:\n{done.stderr.strip()}\n"
+                "Set the controller's `compile.enabled: false` to run without a compiler."
+            )
+        # copy beside the target, then rename: atomic on the cache's file system
+        staged = library.with_suffix(f".{os.getpid()}.tmp")
+        shutil.copyfile(partial, staged)
+        os.replace(staged, library)
+    return library
+
+
+def _generate(solver: ca.Function, directory: Path) -> Path:
+    """CasADi writes generated code to the working directory: do it inside ``directory``."""
+    here = Path.cwd()
+    os.chdir(directory)
+    try:
+        name = solver.generate_dependencies("nlp.c", {"with_header": False})
+    finally:
+        os.chdir(here)
+    return directory / name
+
+
+def _warn_once(message: str) -> None:
+    global _warned
+    if not _warned:
+        print(f"cape: {message}", file=sys.stderr)
+        _warned = True
