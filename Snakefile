@@ -20,6 +20,7 @@ include: "workflow/rules/models.smk"
 include: "workflow/rules/reference.smk"
 include: "workflow/rules/rollouts.smk"
 include: "workflow/rules/figures.smk"
+include: "workflow/rules/study.smk"
 
 
 rule all:

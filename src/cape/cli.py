@@ -175,6 +175,25 @@ def cmd_raceline(args: argparse.Namespace) -> None:
         )
 
 
+# --- cape aggregate ------------------------------------------------------------------------
+def cmd_aggregate(args: argparse.Namespace) -> None:
+    from cape.io import atomic_open
+    from cape.study.aggregate import collect_runs, summarise
+
+    paths = [Path(p) for p in args.runs]
+    if args.runs_from:
+        paths += [Path(line) for line in Path(args.runs_from).read_text().split() if line]
+    runs = collect_runs(paths, _config(args)["study"]["studies"])
+    with atomic_open(args.out, "wb") as handle:
+        runs.to_parquet(handle, index=False)
+    summary = summarise(runs)
+    with atomic_open(args.summary, "wb") as handle:
+        summary.to_parquet(handle, index=False)
+    ok = int(runs["success"].sum())
+    print(f"{len(runs)} runs ({ok} laps, {len(runs) - ok} failures) → {args.out}; "
+          f"{len(summary)} cells → {args.summary}")  # fmt: skip
+
+
 # --- cape rollout --------------------------------------------------------------------------
 PLANT_KINDS = "dpm|ddm|epm (learned), dpm-fixed|ddm-fixed|epm-fixed, or truth"
 
@@ -554,6 +573,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--raceline", help="reference .npz (default: results/raceline/<track>.npz)")
     _add_config_args(p)
     p.set_defaults(func=cmd_rollout)
+
+    p = sub.add_parser(
+        "aggregate", help="every run's metrics in one table, and per-cell means with 95 % CIs"
+    )
+    p.add_argument("runs", nargs="*", help="metrics.json files of the runs")
+    p.add_argument("--runs-from", metavar="FILE", help="a file listing metrics.json paths")
+    p.add_argument("--out", required=True, help="the tidy table of runs (.parquet)")
+    p.add_argument("--summary", required=True, help="the per-cell summary (.parquet)")
+    _add_config_args(p)
+    p.set_defaults(func=cmd_aggregate)
 
     p = sub.add_parser(
         "plot-rollout", help="figure of one run: path on the track and the five signals"

@@ -23,3 +23,24 @@ OPENLOOP_RMSE = {
     "dpm": {"vx": 0.0343, "vy": 0.1252, "omega": 4.306},
 }
 """Open-loop one-step RMSE (the paper's "Open Loop Results")."""
+
+ADAPTIVE_LAP_TIME = {"epm": 5.82, "ddm": 8.80, "dpm": 12.99}
+"""Adaptive NMPC, failure-penalised lap time (s) averaged over η (learned study)."""
+
+ETA1_RELATIVE = {
+    # EPM against (DPM, DDM), averaged over the five controllers at η = 1, in %
+    "mean_abs_ex_penalised": {"dpm": -29.0, "ddm": -17.2},
+    "mean_abs_ey_penalised": {"dpm": -24.6, "ddm": -12.3},
+    "mean_speed": {"dpm": 39.9, "ddm": 3.1},
+}
+"""EPM's relative difference at η = 1."""
+
+NMPC_FAILURES = {"epm": 0, "ddm": 12, "dpm": 19}
+"""Failures of the three NMPCs over the 11 η levels (33 runs) per learned model."""
+
+BEST_BICYCLE = {
+    "dpm": {"controller": "nmpc", "max_eta": 3.0, "lap_time": 7.74},
+    "ddm": {"controller": "rnmpc", "max_eta": 0.5, "lap_time": 7.32},
+    "epm": {"controller": "nmpc", "max_eta": 2.5, "lap_time": 5.66},
+}
+"""Best controller per fixed-parameter bicycle model: the highest η completed and its lap time."""

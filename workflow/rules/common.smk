@@ -134,6 +134,47 @@ def rollout_targets():
     return targets
 
 
+# --- the study's notebooks -------------------------------------------------------------------
+TABLE_EXTS = ["csv", "md", "tex"]
+CLOSED_LOOP_FIGURES = [
+    "fig02_signals_eta0",
+    "fig03_tracking_error_sweep",
+    "fig07_ex_time_eta0",
+    "fig08_ey_time_eta0",
+    "fig09_trajectories_eta0",
+    "fig10_penalised_errors_sweep",
+    "fig11_penalised_lap_time",
+]
+CLOSED_LOOP_TABLES = ["table06_metrics_eta1", "table07_success"]
+BICYCLE_FIGURES = ["fig05_bicycle_errors", "fig06_bicycle_lap_time"]
+
+
+def example_series(study):
+    """The time series the η = 0 figures draw: every run of ``study`` at η = 0, first seed."""
+    return [
+        target.replace("metrics.json", "timeseries.parquet")
+        for target in rollout_targets()
+        if target.startswith(f"results/runs/{study}/") and "/eta0/seed0/" in target
+    ]
+
+
+def study_targets():
+    """Every table, figure and executed notebook of the study."""
+    targets = [
+        "results/study/runs.parquet",
+        "results/figures/fig01_block_diagram.pdf",
+        "results/tables/table08_scorecard.md",
+        "results/notebooks/setup.html",
+        "results/notebooks/bicycle.html",
+        "results/notebooks/ablation.html",
+        "results/notebooks/scorecard.html",
+    ]
+    for study in ("learned", "truth"):
+        if study in config["study"]["studies"]:
+            targets.append(f"results/notebooks/closed_loop_{study}.html")
+    return targets
+
+
 def dataset_path(track):
     return f"results/data/DYN-PP-{track}.npz"
 
@@ -149,4 +190,5 @@ def all_targets():
         "results/figures/model_phi_ethzmobil.pdf",
         "results/figures/training_curves.pdf",
         f"results/raceline/{config['reference']['track']}.npz",
+        *study_targets(),
     ]

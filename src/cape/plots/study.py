@@ -1,0 +1,224 @@
+"""The study's figures (SPEC §9): sweeps over η with confidence bands, bars with CIs, time
+series and trajectories of chosen runs, the closed-loop block diagram. Every function takes
+data frames and returns a figure; the notebooks only choose what to draw and save it."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from cape.plots.style import plt
+from cape.plots.tracks import closed, draw_track
+from cape.tracks.track import Track
+
+CONTROLLER_STYLES = ("-", "--", "-.", ":", (0, (5, 1, 1, 1)))
+MARKERS = ("o", "s", "^", "D", "v", "P", "X")
+
+
+def _colour(models: Mapping[str, Mapping], name: str) -> str:
+    base = name.removesuffix("-fixed")
+    return str(models.get(base, {}).get("color", "0.3"))
+
+
+def _label(models: Mapping[str, Mapping], name: str) -> str:
+    base = name.removesuffix("-fixed")
+    label = str(models.get(base, {}).get("label", base.upper()))
+    if name == "truth":
+        return "true model"
+    return f"{label} (fixed)" if name.endswith("-fixed") else label
+
+
+def eta_sweep(
+    summary: pd.DataFrame,
+    metrics: Sequence[tuple[str, str]],
+    controllers: Mapping[str, str],
+    models: Mapping[str, Mapping],
+) -> plt.Figure:
+    """Rows: metrics (column prefix, axis label); columns: controllers; a line per model with
+    its 95 % confidence band over seeds."""
+    names = [c for c in controllers if c in set(summary["controller"])]
+    fig, axes = plt.subplots(
+        len(metrics), len(names), figsize=(3.0 * len(names), 2.6 * len(metrics)),
+        sharex=True, squeeze=False,
+    )  # fmt: skip
+    for j, controller in enumerate(names):
+        cells = summary[summary["controller"] == controller]
+        for i, (metric, ylabel) in enumerate(metrics):
+            ax = axes[i, j]
+            for k, (model, group) in enumerate(cells.groupby("model", sort=True)):
+                group = group.sort_values("eta")
+                mean = group[f"{metric}_mean"].to_numpy(dtype=float)
+                half = np.nan_to_num(group[f"{metric}_ci"].to_numpy(dtype=float))
+                colour = _colour(models, model)
+                ax.plot(group["eta"], mean, color=colour, marker=MARKERS[k % len(MARKERS)],
+                        ms=3, lw=1.2, label=_label(models, model))  # fmt: skip
+                ax.fill_between(group["eta"], mean - half, mean + half, color=colour, alpha=0.18)
+            ax.grid(True, lw=0.3, alpha=0.5)
+            if j == 0:
+                ax.set_ylabel(ylabel)
+            if i == 0:
+                ax.set_title(controllers[controller])
+            if i == len(metrics) - 1:
+                ax.set_xlabel("η (disturbance level)")
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), frameon=False,
+               bbox_to_anchor=(0.5, -0.02))  # fmt: skip
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    return fig
+
+
+def bars(
+    summary: pd.DataFrame,
+    metrics: Sequence[tuple[str, str]],
+    controllers: Mapping[str, str],
+    models: Mapping[str, Mapping],
+    order: Sequence[str] | None = None,
+) -> plt.Figure:
+    """Grouped bars, one panel per metric: per controller, one bar per model, the mean over the
+    η grid of the per-η means, with the root-mean-square of their 95 % CIs as error bar."""
+    fig, axes = plt.subplots(
+        len(metrics), 1, figsize=(1.6 + 1.5 * len(controllers), 3.0 * len(metrics)),
+        squeeze=False,
+    )  # fmt: skip
+    for ax, (metric, ylabel) in zip(axes[:, 0], metrics, strict=True):
+        _bar_panel(ax, summary, metric, ylabel, controllers, models, order)
+    fig.tight_layout()
+    return fig
+
+
+def _bar_panel(
+    ax: plt.Axes,
+    summary: pd.DataFrame,
+    metric: str,
+    ylabel: str,
+    controllers: Mapping[str, str],
+    models: Mapping[str, Mapping],
+    order: Sequence[str] | None,
+) -> None:
+    names = [c for c in controllers if c in set(summary["controller"])]
+    model_names = list(order or sorted(set(summary["model"])))
+    width = 0.8 / max(len(model_names), 1)
+    for k, model in enumerate(model_names):
+        means, halves = [], []
+        for controller in names:
+            runs = summary[(summary["controller"] == controller) & (summary["model"] == model)]
+            means.append(float(runs[f"{metric}_mean"].mean()) if len(runs) else np.nan)
+            halves.append(float(runs[f"{metric}_ci"].pow(2).mean() ** 0.5) if len(runs) else 0)
+        x = np.arange(len(names)) + (k - (len(model_names) - 1) / 2) * width
+        ax.bar(x, means, width, yerr=np.nan_to_num(halves), capsize=2,
+               color=_colour(models, model), alpha=0.5 if model.endswith("-fixed") else 0.95,
+               hatch="//" if model.endswith("-fixed") else None, edgecolor="black", lw=0.5,
+               label=_label(models, model))  # fmt: skip
+    ax.set_xticks(np.arange(len(names)), [controllers[c] for c in names], fontsize=8)
+    ax.set_ylabel(ylabel)
+    ax.grid(True, axis="y", lw=0.3, alpha=0.5)
+    ax.legend(fontsize=8, ncol=min(4, len(model_names)), frameon=False, loc="upper left")
+
+
+def signals_grid(
+    series: Mapping[tuple[str, str], pd.DataFrame],
+    signals: Sequence[tuple[str, str]],
+    controllers: Mapping[str, str],
+    models: Mapping[str, Mapping],
+) -> plt.Figure:
+    """Rows: signals; columns: models; a line per controller (one run each)."""
+    model_names = sorted({m for m, _ in series})
+    fig, axes = plt.subplots(
+        len(signals), len(model_names), figsize=(4.2 * len(model_names), 1.6 * len(signals) + 0.6),
+        sharex=True, squeeze=False,
+    )  # fmt: skip
+    for j, model in enumerate(model_names):
+        for c, controller in enumerate(controllers):
+            frame = series.get((model, controller))
+            if frame is None:
+                continue
+            for i, (key, _) in enumerate(signals):
+                axes[i, j].plot(frame["t"], frame[key], lw=0.9,
+                                ls=CONTROLLER_STYLES[c % len(CONTROLLER_STYLES)],
+                                label=controllers[controller])  # fmt: skip
+        axes[0, j].set_title(_label(models, model))
+        axes[-1, j].set_xlabel("time (s)")
+        for i, (_, ylabel) in enumerate(signals):
+            axes[i, j].grid(True, lw=0.3, alpha=0.5)
+            if j == 0:
+                axes[i, j].set_ylabel(ylabel)
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), frameon=False,
+               bbox_to_anchor=(0.5, -0.01))  # fmt: skip
+    fig.tight_layout(rect=(0, 0.04, 1, 1))
+    return fig
+
+
+def trajectories(
+    track: Track,
+    reference: tuple[np.ndarray, np.ndarray],
+    paths: Mapping[str, Mapping[str, pd.DataFrame]],
+    labels: Mapping[str, str],
+    titles: Mapping[str, str],
+    styles: Mapping[str, object] | None = None,
+    colours: Mapping[str, str] | None = None,
+    ncols: int = 4,
+) -> plt.Figure:
+    """One panel per key of ``paths``, each with its named runs' paths on the track; every
+    path ends in a cross (where the lap ended or the car left the track)."""
+    cols = min(ncols, len(paths))
+    rows = -(-len(paths) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(5.0 * cols, 4.8 * rows), squeeze=False)
+    for ax in axes.ravel()[len(paths) :]:
+        ax.axis("off")
+    for ax, (panel, runs) in zip(axes.ravel(), paths.items(), strict=False):
+        draw_track(ax, track, centre=False)
+        ax.plot(closed(reference[0]), closed(reference[1]), color="0.6", lw=0.8, ls=":",
+                label="reference")  # fmt: skip
+        for c, (name, frame) in enumerate(runs.items()):
+            style = (styles or {}).get(name, CONTROLLER_STYLES[c % len(CONTROLLER_STYLES)])
+            colour = (colours or {}).get(name)
+            (line,) = ax.plot(frame["X"], frame["Y"], lw=1.1, ls=style, color=colour,
+                              label=labels.get(name, name))  # fmt: skip
+            if len(frame):
+                ax.plot(frame["X"].iloc[-1], frame["Y"].iloc[-1], "x", color=line.get_color())
+        ax.set_title(titles.get(panel, panel))
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=3,
+                  frameon=False)  # fmt: skip
+    fig.tight_layout()
+    return fig
+
+
+def block_diagram() -> plt.Figure:
+    """Figure 1: the closed loop of every run (SPEC §5), with where η enters."""
+    fig, ax = plt.subplots(figsize=(10, 3.2))
+    ax.set_xlim(0, 10)
+    ax.set_ylim(0, 3.2)
+    ax.axis("off")
+    boxes = {
+        "reference\n(raceline, §5.2)": (0.2, 1.9),
+        "controller\nPID · RISE · NMPC\n(internal model, §7)": (2.3, 1.9),
+        "steering delay\n(η > 0)": (4.6, 1.9),
+        "plant\nlearned · fixed · truth\n(+ mismatch, §5.1)": (6.6, 1.9),
+        "process noise +\ncrosswind (η > 0)": (8.5, 1.9),
+        "measurement noise +\nIMU bias (η > 0)": (5.6, 0.3),
+    }
+    centres = {}
+    for text, (x, y) in boxes.items():
+        w, h = 1.5 if "process" not in text else 1.4, 0.95
+        ax.add_patch(plt.Rectangle((x, y), w, h, fc="#eef3fb", ec="black", lw=1))
+        ax.text(x + w / 2, y + h / 2, text, ha="center", va="center", fontsize=8)
+        centres[text.split("\n")[0]] = (x, y, w, h)
+
+    def arrow(x0: float, y0: float, x1: float, y1: float, label: str = "") -> None:
+        ax.annotate("", xy=(x1, y1), xytext=(x0, y0), arrowprops={"arrowstyle": "->", "lw": 1})
+        if label:
+            ax.text((x0 + x1) / 2, (y0 + y1) / 2 + 0.08, label, ha="center", fontsize=7)
+
+    y = 1.9 + 0.475
+    arrow(1.7, y, 2.3, y, "p_ref, v_ref")
+    arrow(3.8, y, 4.6, y, "u = [T, δ]")
+    arrow(6.1, y, 6.6, y)
+    arrow(8.1, y, 8.5, y, "x")
+    arrow(9.2, 1.9, 7.1, 0.775)
+    arrow(5.6, 0.775, 3.05, 1.9, "z (measured)")
+    ax.text(5.0, 3.05, "one lap of ETHZMobil per run: (plant, internal model, controller, η, seed)",
+            ha="center", fontsize=9)  # fmt: skip
+    return fig

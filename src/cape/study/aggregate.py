@@ -1,0 +1,102 @@
+"""Every run's metrics in one tidy table (``runs.parquet``), and summaries over seeds.
+
+A run is identified by (study, plant, internal, controller, eta, seed); its folder
+``<root>/<study>/<plant>/<internal>/<controller>/eta<η>/seed<s>/`` holds ``metrics.json`` and
+``timing.json``. Summaries group the seeds of one cell: the mean of a metric with its 95 %
+confidence interval (Student's t over the seeds), the success rate, and the failure-penalised
+means of SPEC §5.3 (a failed run counts with the penalty values).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from cape.errors import CapeError
+
+KEYS = ["study", "plant", "internal", "controller", "eta", "seed"]
+CELL = ["study", "model", "plant", "internal", "controller", "eta", "eta_label"]
+METRICS = [
+    "lap_time",
+    "lap_time_penalised",
+    "mean_abs_ex",
+    "mean_abs_ey",
+    "mean_abs_ex_penalised",
+    "mean_abs_ey_penalised",
+    "mean_abs_cte",
+    "mean_speed",
+    "mean_abs_dT",
+    "mean_abs_ddelta",
+    "fallbacks",
+    "solve_ms_median",
+]
+
+
+def read_run(metrics_path: Path) -> dict:
+    """One row: the run's metrics, its timing, and its study (from the folder)."""
+    try:
+        metrics = json.loads(metrics_path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise CapeError(f"{metrics_path}: unreadable run metrics ({exc}); rerun that run") from None
+    timing_path = metrics_path.with_name("timing.json")
+    timing = json.loads(timing_path.read_text()) if timing_path.is_file() else {}
+    row = {"study": metrics_path.parents[5].name, **metrics, **timing}
+    row["eta_label"] = str(row["eta"])
+    row["eta"] = float(row["eta"])
+    row.setdefault("fallbacks", 0)
+    return row
+
+
+def collect_runs(paths: Iterable[Path], studies: Mapping[str, Any]) -> pd.DataFrame:
+    """The tidy table of the given runs, sorted by its keys. ``model`` names the model a run is
+    about: the internal model in a study that varies it (the ground-truth study), else the
+    plant's; ``studies`` is the config's ``study.studies``."""
+    rows = [read_run(Path(p)) for p in paths]
+    if not rows:
+        raise CapeError("no runs to aggregate")
+    frame = pd.DataFrame(rows)
+    varies_internal = frame["study"].map(
+        lambda s: bool(studies.get(s, {}).get("internal")) and s != "ablation"
+    )
+    frame["model"] = frame["internal"].where(varies_internal, frame["plant"])
+    first = [*KEYS, "model", "eta_label", "success", "failure", "steps"]
+    frame = frame[first + [c for c in frame.columns if c not in first]]
+    return frame.sort_values(KEYS, kind="stable").reset_index(drop=True)
+
+
+def mean_ci(values: Sequence[float], level: float = 0.95) -> tuple[float, float, float]:
+    """Mean and the half-width of its confidence interval (NaN half-width for one value)."""
+    x = np.asarray([v for v in values if v is not None and not math.isnan(v)], dtype=float)
+    if x.size == 0:
+        return math.nan, math.nan, 0
+    if x.size == 1:
+        return float(x[0]), math.nan, 1
+    half = stats.t.ppf(0.5 + level / 2, x.size - 1) * x.std(ddof=1) / math.sqrt(x.size)
+    return float(x.mean()), float(half), int(x.size)
+
+
+def summarise(runs: pd.DataFrame, by: Sequence[str] = CELL, level: float = 0.95) -> pd.DataFrame:
+    """Per cell: runs, successes, success rate, and for every metric its mean and CI half-width
+    (``<metric>_mean``, ``<metric>_ci``, over the runs where it exists: successful laps for the
+    plain lap time, every run for the penalised values)."""
+    rows = []
+    for key, group in runs.groupby(list(by), sort=True, dropna=False):
+        row = dict(zip(by, key if isinstance(key, tuple) else (key,), strict=True))
+        row["runs"] = len(group)
+        row["successes"] = int(group["success"].sum())
+        row["success_rate"] = row["successes"] / len(group)
+        for metric in METRICS:
+            if metric not in group:
+                continue
+            values = group[metric].to_numpy(dtype=float)
+            mean, half, n = mean_ci(values, level)
+            row[f"{metric}_mean"], row[f"{metric}_ci"], row[f"{metric}_n"] = mean, half, n
+        rows.append(row)
+    return pd.DataFrame(rows)

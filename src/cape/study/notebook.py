@@ -1,0 +1,61 @@
+"""What the figure notebooks share: loading the config, the runs and the summary, labels,
+the folder of one run, and writing tables and figures where the workflow expects them."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from cape.config import config_from_args
+from cape.plots.style import save_figure
+from cape.tables import write_table
+
+
+def enter_repository() -> None:
+    """Opened by hand from notebooks/, a notebook works from the repository root like the
+    workflow does (its default paths are relative to it)."""
+    if Path.cwd().name == "notebooks" and (Path.cwd().parent / "Snakefile").is_file():
+        os.chdir(Path.cwd().parent)
+
+
+def load_config(config_json: str = "") -> dict[str, Any]:
+    """The sections papermill passed as JSON, else config/config.yaml."""
+    return config_from_args(None, config_json or None)
+
+
+def controller_labels(config: Mapping[str, Any]) -> dict[str, str]:
+    return {name: str(entry.get("label", name)) for name, entry in config["controllers"].items()}
+
+
+def run_dir(root: str | Path, row: Mapping[str, Any]) -> Path:
+    """The folder of the run described by ``row`` (study, plant, internal, controller, η, seed)."""
+    return (
+        Path(root) / str(row["study"]) / str(row["plant"]) / str(row["internal"])
+        / str(row["controller"]) / f"eta{row['eta_label']}" / f"seed{row['seed']}"
+    )  # fmt: skip
+
+
+def series_of(root: str | Path, runs: pd.DataFrame) -> dict[tuple[str, str], pd.DataFrame]:
+    """(model, controller) → the time series of each run in ``runs`` (one per pair)."""
+    out = {}
+    for _, row in runs.iterrows():
+        out[(row["model"], row["controller"])] = pd.read_parquet(
+            run_dir(root, row) / "timeseries.parquet"
+        )
+    return out
+
+
+def save_table(frame: pd.DataFrame, stem: str, latex: bool = True) -> None:
+    """``stem``.csv and .md (and .tex), written atomically."""
+    paths = [f"{stem}.csv", f"{stem}.md"] + ([f"{stem}.tex"] if latex else [])
+    write_table(frame, paths)
+
+
+def save(fig: Any, stem: str) -> None:
+    """``stem``.pdf and .png."""
+    Path(stem).parent.mkdir(parents=True, exist_ok=True)
+    save_figure(fig, f"{stem}.pdf", f"{stem}.png")

@@ -1,0 +1,146 @@
+"""The study's tables (SPEC §9, tables 2, 3, 5, 6, 7) as data frames, from the config and the
+aggregated runs. The notebooks only call these and write the results."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import pandas as pd
+
+PRESENTATION = ("module", "label", "color")
+
+
+def _flatten(entry: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
+    rows: list[tuple[str, Any]] = []
+    for key, value in entry.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            rows += _flatten(value, f"{name}.")
+        else:
+            rows.append((name, value))
+    return rows
+
+
+def controller_parameters(controllers: Mapping[str, Any]) -> pd.DataFrame:
+    """Table 2: every controller's settings from the config (one row per parameter)."""
+    rows = []
+    for name, entry in controllers.items():
+        settings = {k: v for k, v in entry.items() if k not in PRESENTATION}
+        for key, value in _flatten(settings):
+            if key.startswith("compile"):
+                continue  # how the solver is built, not a parameter of the law
+            shown = ", ".join(map(str, value)) if isinstance(value, list) else value
+            rows.append({"controller": entry.get("label", name), "parameter": key, "value": shown})
+    return pd.DataFrame(rows)
+
+
+def uncertainty_activation(disturbances: Mapping[str, Any]) -> pd.DataFrame:
+    """Table 3: which source is active at each η of the grid, with its size there."""
+    rows = []
+    for label in disturbances["eta"]:
+        eta = float(label)
+
+        def on(name: str, eta: float = eta) -> bool:
+            return eta > float(disturbances[name].get("active_from", 0.0))
+
+        mn, pn = disturbances["measurement_noise"], disturbances["process_noise"]
+        rows.append(
+            {
+                "η": label,
+                "measurement noise σ (%)": f"{100 * eta * mn['sigma_per_eta']:.1f}"
+                if on("measurement_noise") else "–",
+                "process noise σ (%)": f"{100 * eta * pn['sigma_per_eta']:.1f}"
+                if on("process_noise") else "–",
+                "steering delay (steps)": disturbances["steering_delay"]["steps"]
+                if on("steering_delay") else "–",
+                "IMU bias drift": "✓" if on("imu_bias") else "–",
+                "crosswind": "✓" if on("crosswind") else "–",
+                "parameter mismatch": "✓" if on("mismatch") else "–",
+            }
+        )  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def completed(summary: pd.DataFrame) -> pd.Series:
+    """A cell counts as completed when at least half of its seeds lap."""
+    return summary["success_rate"] >= 0.5
+
+
+def best_controller(summary: pd.DataFrame, labels: Mapping[str, str]) -> pd.DataFrame:
+    """Table 5: per model, the controller that completes the highest η (ties: faster lap), with
+    that η and its mean lap time."""
+    rows = []
+    done = summary[completed(summary)]
+    for model, group in done.groupby("model", sort=True):
+        best = None
+        for controller, cells in group.groupby("controller"):
+            top = cells.loc[cells["eta"].idxmax()]
+            key = (float(top["eta"]), -float(top["lap_time_mean"]))
+            if best is None or key > best[0]:
+                best = (key, controller, top)
+        assert best is not None
+        _, controller, top = best
+        rows.append(
+            {
+                "model": model,
+                "best controller": labels.get(controller, controller),
+                "max η completed": float(top["eta"]),
+                "lap time (s)": float(top["lap_time_mean"]),
+                "± 95 % CI": float(top["lap_time_ci"]),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def metrics_at(summary: pd.DataFrame, eta: float, labels: Mapping[str, str]) -> pd.DataFrame:
+    """Table 6: failure-penalised e_x, e_y, mean speed and lap time per model × controller at
+    one η, with CIs and the success rate."""
+    cells = summary[summary["eta"] == eta]
+    rows = []
+    for _, c in cells.sort_values(["model", "controller"]).iterrows():
+        rows.append(
+            {
+                "model": c["model"],
+                "controller": labels.get(c["controller"], c["controller"]),
+                "mean |e_x| (m)": c["mean_abs_ex_penalised_mean"],
+                "± CI e_x": c["mean_abs_ex_penalised_ci"],
+                "mean |e_y| (m)": c["mean_abs_ey_penalised_mean"],
+                "± CI e_y": c["mean_abs_ey_penalised_ci"],
+                "mean speed (m/s)": c["mean_speed_mean"],
+                "lap time (s)": c["lap_time_penalised_mean"],
+                "± CI lap": c["lap_time_penalised_ci"],
+                "success": f"{int(c['successes'])}/{int(c['runs'])}",
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def success_grid(summary: pd.DataFrame, labels: Mapping[str, str]) -> pd.DataFrame:
+    """Table 7: ✓ and the mean lap time where every seed laps, ✗ where none does, k/n between."""
+
+    def mark(c: pd.Series) -> str:
+        if c["successes"] == c["runs"]:
+            return f"✓ {c['lap_time_mean']:.2f}"
+        if c["successes"] == 0:
+            return "✗"
+        return f"{int(c['successes'])}/{int(c['runs'])}"
+
+    frame = summary.assign(mark=summary.apply(mark, axis=1))
+    frame["controller"] = frame["controller"].map(lambda c: labels.get(c, c))
+    grid = frame.pivot_table(
+        index=["model", "controller"], columns="eta_label", values="mark", aggfunc="first"
+    )
+    order = sorted(grid.columns, key=float)
+    grid = grid[order]
+    grid.columns = [f"η={c}" for c in order]
+    return grid.reset_index()
+
+
+def fmt_ci(mean: float, half: float, digits: int = 3) -> str:
+    if mean is None or (isinstance(mean, float) and math.isnan(mean)):
+        return "–"
+    if half is None or math.isnan(half):
+        return f"{mean:.{digits}f}"
+    return f"{mean:.{digits}f} ± {half:.{digits}f}"

@@ -1,0 +1,177 @@
+# The study (SPEC §8–§10): every run aggregated into one table, then the figure notebooks,
+# executed by papermill into results/notebooks/ (with an HTML copy), writing the tables and
+# figures of SPEC §9.
+
+
+rule aggregate:
+    """Every run's metrics in results/study/runs.parquet; per-cell means, CIs and success rates
+    in results/study/summary.parquet."""
+    input:
+        rollout_targets(),
+    output:
+        runs="results/study/runs.parquet",
+        summary="results/study/summary.parquet",
+    params:
+        cfg=lambda wildcards: config_json("study"),
+    conda:
+        CAPE_ENV
+    log:
+        "results/logs/study/aggregate.log",
+    benchmark:
+        "results/benchmarks/study/aggregate.tsv"
+    shell:
+        "cape aggregate {input:q} --out {output.runs} --summary {output.summary}"
+        " --config-json {params.cfg:q} > {log} 2>&1"
+
+
+rule notebook_setup:
+    """Figure 1 and tables 2–3, from the config alone."""
+    input:
+        notebook="notebooks/setup.ipynb",
+    output:
+        report(multiext("results/figures/fig01_block_diagram", ".png"), caption="../report/fig01.rst", category="Set-up"),
+        multiext("results/figures/fig01_block_diagram", ".pdf"),
+        multiext("results/tables/table02_controller_parameters", ".csv", ".md", ".tex"),
+        multiext("results/tables/table03_uncertainty_activation", ".csv", ".md", ".tex"),
+        notebook="results/notebooks/setup.ipynb",
+        html="results/notebooks/setup.html",
+    params:
+        cfg=lambda wildcards: config_json("controllers", "disturbances"),
+    conda:
+        CAPE_ENV
+    log:
+        "results/logs/notebooks/setup.log",
+    localrule: True
+    shell:
+        "papermill {input.notebook} {output.notebook} --cwd . --no-progress-bar"
+        " -r config_json {params.cfg:q} > {log} 2>&1"
+        " && jupyter nbconvert --to html {output.notebook} --output-dir results/notebooks >> {log} 2>&1"
+
+
+rule notebook_closed_loop:
+    """Figures 2, 3, 7–11 and tables 6–7 of one study (learned or truth)."""
+    input:
+        notebook="notebooks/closed_loop.ipynb",
+        runs="results/study/runs.parquet",
+        summary="results/study/summary.parquet",
+        raceline=raceline_path(),
+        series=lambda wildcards: example_series(wildcards.study),
+    output:
+        report(
+            expand("results/figures/{{study}}/{name}.png", name=CLOSED_LOOP_FIGURES),
+            caption="../report/closed_loop.rst",
+            category="{study} study",
+        ),
+        expand("results/figures/{{study}}/{name}.pdf", name=CLOSED_LOOP_FIGURES),
+        expand("results/tables/{{study}}/{name}.{ext}", name=CLOSED_LOOP_TABLES, ext=TABLE_EXTS),
+        notebook="results/notebooks/closed_loop_{study}.ipynb",
+        html="results/notebooks/closed_loop_{study}.html",
+    wildcard_constraints:
+        study="learned|truth",
+    params:
+        cfg=lambda wildcards: config_json("tracks", "data", "reference", "controllers", "models", "study"),
+    conda:
+        CAPE_ENV
+    log:
+        "results/logs/notebooks/closed_loop_{study}.log",
+    benchmark:
+        "results/benchmarks/notebooks/closed_loop_{study}.tsv"
+    shell:
+        "papermill {input.notebook} {output.notebook} --cwd . --no-progress-bar"
+        " -r study {wildcards.study} -r config_json {params.cfg:q}"
+        " -r figure_dir results/figures/{wildcards.study} -r table_dir results/tables/{wildcards.study}"
+        " > {log} 2>&1"
+        " && jupyter nbconvert --to html {output.notebook} --output-dir results/notebooks >> {log} 2>&1"
+
+
+rule notebook_bicycle:
+    """Table 5 and figures 5–6: the fixed-parameter bicycle study against the learned EPM."""
+    input:
+        notebook="notebooks/bicycle.ipynb",
+        summary="results/study/summary.parquet",
+    output:
+        report(
+            expand("results/figures/bicycle/{name}.png", name=BICYCLE_FIGURES),
+            caption="../report/bicycle.rst",
+            category="bicycle study",
+        ),
+        expand("results/figures/bicycle/{name}.pdf", name=BICYCLE_FIGURES),
+        multiext("results/tables/bicycle/table05_best_bicycle_controller", ".csv", ".md", ".tex"),
+        notebook="results/notebooks/bicycle.ipynb",
+        html="results/notebooks/bicycle.html",
+    params:
+        cfg=lambda wildcards: config_json("controllers", "models", "study"),
+    conda:
+        CAPE_ENV
+    log:
+        "results/logs/notebooks/bicycle.log",
+    localrule: True
+    shell:
+        "papermill {input.notebook} {output.notebook} --cwd . --no-progress-bar"
+        " -r config_json {params.cfg:q} -r figure_dir results/figures/bicycle"
+        " -r table_dir results/tables/bicycle > {log} 2>&1"
+        " && jupyter nbconvert --to html {output.notebook} --output-dir results/notebooks >> {log} 2>&1"
+
+
+rule notebook_ablation:
+    """Figure 4: internal model vs plant trajectories."""
+    input:
+        notebook="notebooks/ablation.ipynb",
+        runs="results/study/runs.parquet",
+        raceline=raceline_path(),
+        series=lambda wildcards: example_series("ablation"),
+    output:
+        report(
+            "results/figures/ablation/fig04_ablation_trajectories.png",
+            caption="../report/fig04.rst",
+            category="ablation",
+        ),
+        "results/figures/ablation/fig04_ablation_trajectories.pdf",
+        notebook="results/notebooks/ablation.ipynb",
+        html="results/notebooks/ablation.html",
+    params:
+        cfg=lambda wildcards: config_json("tracks", "data", "reference", "controllers", "models", "study"),
+    conda:
+        CAPE_ENV
+    log:
+        "results/logs/notebooks/ablation.log",
+    localrule: True
+    shell:
+        "papermill {input.notebook} {output.notebook} --cwd . --no-progress-bar"
+        " -r config_json {params.cfg:q} -r figure_dir results/figures/ablation > {log} 2>&1"
+        " && jupyter nbconvert --to html {output.notebook} --output-dir results/notebooks >> {log} 2>&1"
+
+
+rule notebook_scorecard:
+    """Table 8: the paper's headline claims beside ours."""
+    input:
+        notebook="notebooks/scorecard.ipynb",
+        runs="results/study/runs.parquet",
+        summary="results/study/summary.parquet",
+        complexity="results/tables/model_complexity.csv",
+        openloop="results/tables/openloop_rmse.csv",
+    output:
+        report(
+            "results/tables/table08_scorecard.md", caption="../report/scorecard.rst", category="Claims"
+        ),
+        multiext("results/tables/table08_scorecard", ".csv", ".tex"),
+        notebook="results/notebooks/scorecard.ipynb",
+        html="results/notebooks/scorecard.html",
+    params:
+        cfg=lambda wildcards: config_json("controllers", "models", "study"),
+    conda:
+        CAPE_ENV
+    log:
+        "results/logs/notebooks/scorecard.log",
+    localrule: True
+    shell:
+        "papermill {input.notebook} {output.notebook} --cwd . --no-progress-bar"
+        " -r config_json {params.cfg:q} > {log} 2>&1"
+        " && jupyter nbconvert --to html {output.notebook} --output-dir results/notebooks >> {log} 2>&1"
+
+
+rule study:
+    """Every table, figure and executed notebook of the study (a named target)."""
+    input:
+        study_targets(),
+    localrule: True
