@@ -36,7 +36,7 @@ rule notebook_setup:
         notebook="results/notebooks/setup.ipynb",
         html="results/notebooks/setup.html",
     params:
-        cfg=lambda wildcards: config_json("controllers", "disturbances"),
+        cfg=lambda wildcards: config_json("controllers", "disturbances", "models"),
     conda:
         CAPE_ENV
     log:

@@ -1,0 +1,142 @@
+"""The study's aggregation, tables and scorecard on small hand-made grids of runs."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cape.errors import CapeError
+from cape.study.aggregate import collect_runs, mean_ci, summarise
+from cape.study.scorecard import learned_claims
+from cape.study.tables import (
+    best_controller,
+    controller_parameters,
+    success_grid,
+    uncertainty_activation,
+)
+
+STUDIES = {"learned": {"plants": ["epm"]}, "truth": {"plants": ["truth"], "internal": ["epm"]}}
+
+
+def _write_run(root: Path, study: str, plant: str, internal: str, controller: str, eta: str,
+               seed: int, success: bool, lap: float | None, ey: float) -> Path:  # fmt: skip
+    folder = root / study / plant / internal / controller / f"eta{eta}" / f"seed{seed}"
+    folder.mkdir(parents=True)
+    metrics = {
+        "plant": plant, "internal": internal, "controller": controller, "eta": eta,
+        "seed": seed, "success": success, "failure": None if success else "off_track",
+        "lap_time": lap if success else None, "lap_time_penalised": lap if success else 15.0,
+        "mean_abs_ey": ey, "mean_abs_ey_penalised": ey if success else 0.23, "steps": 100,
+        "fallbacks": 0,
+    }  # fmt: skip
+    (folder / "metrics.json").write_text(json.dumps(metrics))
+    (folder / "timing.json").write_text(json.dumps({"solve_ms_median": 1.0}))
+    return folder / "metrics.json"
+
+
+def test_mean_ci_is_the_student_t_interval() -> None:
+    mean, half, n = mean_ci([1.0, 2.0, 3.0, 4.0])
+    # t(0.975, 3) = 3.182446305…, s = 1.290994…, half = t·s/√4
+    assert (mean, n) == (2.5, 4)
+    assert half == pytest.approx(3.182446305284263 * 1.2909944487358056 / 2, rel=1e-12)
+    assert math.isnan(mean_ci([7.0])[1]) and mean_ci([7.0])[0] == 7.0
+
+
+def test_runs_are_collected_with_their_study_and_model(tmp_path: Path) -> None:
+    paths = [
+        _write_run(tmp_path, "learned", "epm", "epm", "pid", "0", 0, True, 7.4, 0.02),
+        _write_run(tmp_path, "truth", "truth", "epm", "nmpc", "0.5", 1, False, None, 0.1),
+    ]
+    runs = collect_runs(paths, STUDIES)
+    assert list(runs["study"]) == ["learned", "truth"]
+    assert list(runs["model"]) == ["epm", "epm"]  # the plant, then the internal model
+    assert list(runs["eta_label"]) == ["0", "0.5"] and runs["eta"].iloc[1] == 0.5
+    assert runs["solve_ms_median"].tolist() == [1.0, 1.0]
+    with pytest.raises(CapeError, match="no runs"):
+        collect_runs([], STUDIES)
+
+
+def test_summary_counts_successes_and_penalises_failures(tmp_path: Path) -> None:
+    paths = [
+        _write_run(tmp_path, "learned", "epm", "epm", "pid", "1", s, s < 2, 7.0 + s, 0.01 * (s + 1))
+        for s in range(4)
+    ]
+    summary = summarise(collect_runs(paths, STUDIES))
+    (cell,) = summary.to_dict("records")
+    assert (cell["runs"], cell["successes"], cell["success_rate"]) == (4, 2, 0.5)
+    assert cell["lap_time_mean"] == pytest.approx(7.5)  # the two laps only
+    assert cell["lap_time_penalised_mean"] == pytest.approx((7 + 8 + 15 + 15) / 4)
+    assert cell["mean_abs_ey_penalised_mean"] == pytest.approx((0.01 + 0.02 + 0.23 + 0.23) / 4)
+
+
+def _summary(rows: list[tuple]) -> pd.DataFrame:
+    cols = ["model", "controller", "eta", "eta_label", "runs", "successes", "lap_time_mean",
+            "lap_time_ci"]  # fmt: skip
+    frame = pd.DataFrame(rows, columns=cols)
+    frame["success_rate"] = frame["successes"] / frame["runs"]
+    return frame
+
+
+def test_the_best_controller_completes_the_highest_eta_then_laps_fastest() -> None:
+    summary = _summary([
+        ("dpm-fixed", "pid", 0.0, "0", 2, 2, 7.5, 0.1),
+        ("dpm-fixed", "pid", 1.0, "1", 2, 1, 7.9, 0.1),   # half the seeds: completed
+        ("dpm-fixed", "nmpc", 0.0, "0", 2, 2, 7.0, 0.1),
+        ("dpm-fixed", "nmpc", 1.0, "1", 2, 2, 7.2, 0.1),  # same η, faster
+        ("dpm-fixed", "rise", 2.0, "2", 2, 0, np.nan, np.nan),  # never completed
+    ])  # fmt: skip
+    table = best_controller(summary, {"nmpc": "Nominal NMPC"})
+    row = table.iloc[0]
+    assert (row["best controller"], row["max η completed"], row["lap time (s)"]) == (
+        "Nominal NMPC", 1.0, 7.2,
+    )  # fmt: skip
+
+
+def test_the_success_grid_marks_full_partial_and_no_success() -> None:
+    summary = _summary([
+        ("epm", "pid", 0.0, "0", 2, 2, 7.25, 0.1),
+        ("epm", "pid", 0.5, "0.5", 2, 1, 7.5, np.nan),
+        ("epm", "pid", 1.0, "1", 2, 0, np.nan, np.nan),
+    ])  # fmt: skip
+    grid = success_grid(summary, {"pid": "PID"})
+    assert grid.columns.tolist() == ["model", "controller", "η=0", "η=0.5", "η=1"]
+    assert grid.iloc[0, 2:].tolist() == ["✓ 7.25", "1/2", "✗"]
+
+
+def test_config_tables_come_from_the_config(config: dict) -> None:
+    table3 = uncertainty_activation(config["disturbances"])
+    assert table3["η"].tolist() == config["disturbances"]["eta"]
+    assert table3.iloc[0, 1:].tolist() == ["–"] * 6  # η = 0: nothing active
+    at2 = table3[table3["η"] == "2"].iloc[0]
+    assert at2["measurement noise σ (%)"] == "2.0" and at2["process noise σ (%)"] == "4.0"
+    table2 = controller_parameters(config["controllers"])
+    pid = table2[table2["controller"] == "PID"].set_index("parameter")["value"]
+    assert pid["heading.kp"] == 2.2 and pid["lookahead"] == 0.05
+    assert not table2["parameter"].str.startswith("compile").any()
+
+
+def test_the_scorecard_recomputes_the_claims_per_seed() -> None:
+    rows = []
+    for seed in range(3):
+        for model, lap, ex in (("epm", 6.0, 0.01), ("ddm", 8.0, 0.02), ("dpm", 12.0, 0.04)):
+            for controller in ("pid", "anmpc", "nmpc"):
+                fail = model == "dpm" and controller == "nmpc"
+                rows.append({
+                    "study": "learned", "model": model, "controller": controller, "eta": 1.0,
+                    "seed": seed, "success": not fail, "lap_time_penalised": lap + seed,
+                    "mean_abs_ex_penalised": ex, "mean_abs_ey_penalised": ex,
+                    "mean_speed": 2.0 if model == "epm" else 1.0,
+                })  # fmt: skip
+    table = pd.DataFrame(learned_claims(pd.DataFrame(rows)))
+    lap = table[table["claim"].str.startswith("adaptive")].set_index("item")
+    assert lap.loc["EPM", "ours_mean"] == pytest.approx(7.0)  # mean over seeds of 6, 7, 8
+    assert lap.loc["EPM", "ci95"] > 0 and set(lap["holds"]) == {"yes"}
+    speed = table[table["claim"].str.contains("mean_speed") & (table["item"] == "vs DPM")]
+    assert speed["ours_mean"].iloc[0] == pytest.approx(100.0) and speed["holds"].iloc[0] == "yes"
+    fails = table[table["claim"].str.startswith("NMPC-family")].set_index("item")
+    assert fails.loc["DPM", "ours_mean"] == 1 and fails.loc["EPM", "holds"] == "yes"
