@@ -93,7 +93,10 @@ def test_smoke_config_builds_the_model_tables(tmp_path: Path) -> None:
 
     work = _workdir(tmp_path)
     shutil.copy(REPO_ROOT / "config" / "smoke.yaml", work / "config" / "smoke.yaml")
-    targets = ["results/tables/model_complexity.csv", "results/tables/openloop_rmse.csv"]
+    targets = [
+        "results/tables/table01_model_complexity.csv",
+        "results/tables/table04_openloop_rmse.csv",
+    ]
     result = _snakemake(
         "--cores", "2", "-d", str(work), *targets, "--configfile", "config/smoke.yaml"
     )
@@ -109,3 +112,31 @@ def test_smoke_config_builds_the_model_tables(tmp_path: Path) -> None:
         .all()
         .all()
     )
+
+
+@pytest.mark.slow
+def test_the_smoke_study_builds_every_table_figure_and_notebook(tmp_path: Path) -> None:
+    """The whole workflow on the smoke slice, from nothing: every output of `snakemake` exists,
+    every notebook ran, and every run of the grid is in the aggregated table. CI runs this."""
+    import pandas as pd
+
+    work = _workdir(tmp_path)
+    shutil.copy(REPO_ROOT / "config" / "smoke.yaml", work / "config" / "smoke.yaml")
+    result = _snakemake("--cores", "2", "-d", str(work), "--configfile", "config/smoke.yaml")
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    runs = pd.read_parquet(work / "results/study/runs.parquet")
+    assert set(runs["study"]) == {"learned", "bicycle", "ablation", "truth"}
+    assert len(runs) == 97 and runs["seed"].eq(0).all()
+    assert set(runs["eta_label"]) == {"0", "1"}
+    figures = sorted((work / "results/figures").rglob("fig*.png"))
+    numbers = {p.name[3:5] for p in figures}
+    assert numbers == {f"{n:02d}" for n in range(1, 12)}, numbers
+    assert all(p.stat().st_size > 10_000 for p in figures)
+    tables = {p.name[5:7] for p in (work / "results/tables").rglob("table*.md")}
+    assert tables == {f"{n:02d}" for n in range(1, 9)}, tables
+    for name in ("setup", "closed_loop_learned", "closed_loop_truth", "bicycle", "ablation",
+                 "scorecard"):  # fmt: skip
+        assert (work / "results/notebooks" / f"{name}.ipynb").is_file()
+        assert (work / "results/notebooks" / f"{name}.html").stat().st_size > 10_000
+    scorecard = pd.read_csv(work / "results/tables/table08_scorecard.csv")
+    assert {"paper", "ours", "ci95", "holds"} <= set(scorecard.columns)

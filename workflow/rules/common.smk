@@ -135,6 +135,7 @@ def rollout_targets():
 
 
 # --- the study's notebooks -------------------------------------------------------------------
+NOTEBOOKS = os.path.join(workflow.basedir, "notebooks")  # beside the Snakefile, whatever -d is
 TABLE_EXTS = ["csv", "md", "tex"]
 CLOSED_LOOP_FIGURES = [
     "fig02_signals_eta0",
@@ -185,8 +186,8 @@ def all_targets():
         "results/figures/tracks_and_data.pdf",
         "results/figures/tracks_and_data.png",
         *(f"{model_dir(m)}/frozen_phi.json" for m in MODELS),
-        "results/tables/openloop_rmse.csv",
-        "results/tables/model_complexity.csv",
+        "results/tables/table04_openloop_rmse.csv",
+        "results/tables/table01_model_complexity.csv",
         "results/figures/model_phi_ethzmobil.pdf",
         "results/figures/training_curves.pdf",
         f"results/raceline/{config['reference']['track']}.npz",

@@ -50,18 +50,18 @@ rule openloop_table:
         train=dataset_path(config["data"]["train_track"]),
         test=dataset_path(config["data"]["test_track"]),
     output:
-        csv="results/tables/openloop_rmse.csv",
-        md="results/tables/openloop_rmse.md",
-        tex="results/tables/openloop_rmse.tex",
+        csv="results/tables/table04_openloop_rmse.csv",
+        md="results/tables/table04_openloop_rmse.md",
+        tex="results/tables/table04_openloop_rmse.tex",
     params:
         models=model_args(),
         cfg=lambda wildcards: config_json("data", "training"),
     conda:
         CAPE_ENV
     log:
-        "results/logs/tables/openloop_rmse.log",
+        "results/logs/tables/table04_openloop_rmse.log",
     benchmark:
-        "results/benchmarks/tables/openloop_rmse.tsv"
+        "results/benchmarks/tables/table04_openloop_rmse.tsv"
     shell:
         "cape openloop {params.models} --train-data {input.train} --test-data {input.test}"
         " --out {output.csv} --out {output.md} --out {output.tex} --config-json {params.cfg:q} > {log} 2>&1"
@@ -72,18 +72,18 @@ rule complexity_table:
         models=trained_models(),
         test=dataset_path(config["data"]["test_track"]),
     output:
-        csv="results/tables/model_complexity.csv",
-        md="results/tables/model_complexity.md",
-        tex="results/tables/model_complexity.tex",
+        csv="results/tables/table01_model_complexity.csv",
+        md="results/tables/table01_model_complexity.md",
+        tex="results/tables/table01_model_complexity.tex",
     params:
         models=model_args(),
         cfg=lambda wildcards: config_json("training"),
     conda:
         CAPE_ENV
     log:
-        "results/logs/tables/model_complexity.log",
+        "results/logs/tables/table01_model_complexity.log",
     benchmark:
-        "results/benchmarks/tables/model_complexity.tsv"
+        "results/benchmarks/tables/table01_model_complexity.tsv"
     shell:
         "cape complexity {params.models} --data {input.test}"
         " --out {output.csv} --out {output.md} --out {output.tex} --config-json {params.cfg:q} > {log} 2>&1"

@@ -27,7 +27,7 @@ rule aggregate:
 rule notebook_setup:
     """Figure 1 and tables 2–3, from the config alone."""
     input:
-        notebook="notebooks/setup.ipynb",
+        notebook=f"{NOTEBOOKS}/setup.ipynb",
     output:
         report(multiext("results/figures/fig01_block_diagram", ".png"), caption="../report/fig01.rst", category="Set-up"),
         multiext("results/figures/fig01_block_diagram", ".pdf"),
@@ -51,7 +51,7 @@ rule notebook_setup:
 rule notebook_closed_loop:
     """Figures 2, 3, 7–11 and tables 6–7 of one study (learned or truth)."""
     input:
-        notebook="notebooks/closed_loop.ipynb",
+        notebook=f"{NOTEBOOKS}/closed_loop.ipynb",
         runs="results/study/runs.parquet",
         summary="results/study/summary.parquet",
         raceline=raceline_path(),
@@ -87,7 +87,7 @@ rule notebook_closed_loop:
 rule notebook_bicycle:
     """Table 5 and figures 5–6: the fixed-parameter bicycle study against the learned EPM."""
     input:
-        notebook="notebooks/bicycle.ipynb",
+        notebook=f"{NOTEBOOKS}/bicycle.ipynb",
         summary="results/study/summary.parquet",
     output:
         report(
@@ -116,7 +116,7 @@ rule notebook_bicycle:
 rule notebook_ablation:
     """Figure 4: internal model vs plant trajectories."""
     input:
-        notebook="notebooks/ablation.ipynb",
+        notebook=f"{NOTEBOOKS}/ablation.ipynb",
         runs="results/study/runs.parquet",
         raceline=raceline_path(),
         series=lambda wildcards: example_series("ablation"),
@@ -145,11 +145,11 @@ rule notebook_ablation:
 rule notebook_scorecard:
     """Table 8: the paper's headline claims beside ours."""
     input:
-        notebook="notebooks/scorecard.ipynb",
+        notebook=f"{NOTEBOOKS}/scorecard.ipynb",
         runs="results/study/runs.parquet",
         summary="results/study/summary.parquet",
-        complexity="results/tables/model_complexity.csv",
-        openloop="results/tables/openloop_rmse.csv",
+        complexity="results/tables/table01_model_complexity.csv",
+        openloop="results/tables/table04_openloop_rmse.csv",
     output:
         report(
             "results/tables/table08_scorecard.md", caption="../report/scorecard.rst", category="Claims"

@@ -181,7 +181,9 @@ class NominalNMPC(Controller):
                 "qpsol_options": {
                     "print_iter": False,
                     "print_header": False,
+                    "print_info": False,
                     "error_on_fail": False,
+                    "max_iter": int(s["qp_max_iter"]),
                 },
                 "hessian_approximation": "exact",
                 "convexify_strategy": "none",
