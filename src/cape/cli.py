@@ -575,7 +575,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_rollout)
 
     p = sub.add_parser(
-        "aggregate", help="every run's metrics in one table, and per-cell means with 95 % CIs"
+        "aggregate", help="every run's metrics in one table, and per-cell means with 95%% CIs"
     )
     p.add_argument("runs", nargs="*", help="metrics.json files of the runs")
     p.add_argument("--runs-from", metavar="FILE", help="a file listing metrics.json paths")

@@ -114,7 +114,8 @@ def _bar_panel(
     ax.set_xticks(np.arange(len(names)), [controllers[c] for c in names], fontsize=8)
     ax.set_ylabel(ylabel)
     ax.grid(True, axis="y", lw=0.3, alpha=0.5)
-    ax.legend(fontsize=8, ncol=min(4, len(model_names)), frameon=False, loc="upper left")
+    ax.legend(fontsize=8, ncol=min(4, len(model_names)), frameon=False, loc="lower center",
+              bbox_to_anchor=(0.5, 1.0))  # fmt: skip
 
 
 def signals_grid(
@@ -180,7 +181,7 @@ def trajectories(
             if len(frame):
                 ax.plot(frame["X"].iloc[-1], frame["Y"].iloc[-1], "x", color=line.get_color())
         ax.set_title(titles.get(panel, panel))
-        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=3,
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=3,
                   frameon=False)  # fmt: skip
     fig.tight_layout()
     return fig
@@ -188,37 +189,40 @@ def trajectories(
 
 def block_diagram() -> plt.Figure:
     """Figure 1: the closed loop of every run (SPEC §5), with where η enters."""
-    fig, ax = plt.subplots(figsize=(10, 3.2))
-    ax.set_xlim(0, 10)
-    ax.set_ylim(0, 3.2)
+    fig, ax = plt.subplots(figsize=(11, 3.4))
+    ax.set_xlim(0, 11)
+    ax.set_ylim(0, 3.4)
     ax.axis("off")
-    boxes = {
-        "reference\n(raceline, §5.2)": (0.2, 1.9),
-        "controller\nPID · RISE · NMPC\n(internal model, §7)": (2.3, 1.9),
-        "steering delay\n(η > 0)": (4.6, 1.9),
-        "plant\nlearned · fixed · truth\n(+ mismatch, §5.1)": (6.6, 1.9),
-        "process noise +\ncrosswind (η > 0)": (8.5, 1.9),
-        "measurement noise +\nIMU bias (η > 0)": (5.6, 0.3),
-    }
-    centres = {}
-    for text, (x, y) in boxes.items():
-        w, h = 1.5 if "process" not in text else 1.4, 0.95
-        ax.add_patch(plt.Rectangle((x, y), w, h, fc="#eef3fb", ec="black", lw=1))
-        ax.text(x + w / 2, y + h / 2, text, ha="center", va="center", fontsize=8)
-        centres[text.split("\n")[0]] = (x, y, w, h)
+    w, h, top = 1.55, 0.95, 1.9
+    row = [
+        ("reference", "reference\n(raceline, §5.2)"),
+        ("controller", "controller\nPID · RISE · NMPC\n(internal model, §7)"),
+        ("delay", "steering delay\n(η > 0)"),
+        ("plant", "plant\nlearned · fixed · truth\n(mismatch at η > 0)"),
+        ("process", "process noise,\ncrosswind (η > 0)"),
+    ]
+    gap = (11 - 0.2 - len(row) * w) / (len(row) - 1)
+    boxes = {key: (0.1 + i * (w + gap), top) for i, (key, _) in enumerate(row)}
+    boxes["measure"] = (4.4, 0.25)
+    texts = dict(row, measure="measurement noise,\nIMU bias (η > 0)")
+    for key, (x, y) in boxes.items():
+        width = 2.2 if key == "measure" else w
+        ax.add_patch(plt.Rectangle((x, y), width, h, fc="#eef3fb", ec="black", lw=1))
+        ax.text(x + width / 2, y + h / 2, texts[key], ha="center", va="center", fontsize=7.5)
 
-    def arrow(x0: float, y0: float, x1: float, y1: float, label: str = "") -> None:
-        ax.annotate("", xy=(x1, y1), xytext=(x0, y0), arrowprops={"arrowstyle": "->", "lw": 1})
+    def arrow(start: tuple[float, float], end: tuple[float, float], label: str = "") -> None:
+        ax.annotate("", xy=end, xytext=start, arrowprops={"arrowstyle": "->", "lw": 1})
         if label:
-            ax.text((x0 + x1) / 2, (y0 + y1) / 2 + 0.08, label, ha="center", fontsize=7)
+            ax.text((start[0] + end[0]) / 2, (start[1] + end[1]) / 2 + 0.1, label,
+                    ha="center", fontsize=7.5)  # fmt: skip
 
-    y = 1.9 + 0.475
-    arrow(1.7, y, 2.3, y, "p_ref, v_ref")
-    arrow(3.8, y, 4.6, y, "u = [T, δ]")
-    arrow(6.1, y, 6.6, y)
-    arrow(8.1, y, 8.5, y, "x")
-    arrow(9.2, 1.9, 7.1, 0.775)
-    arrow(5.6, 0.775, 3.05, 1.9, "z (measured)")
-    ax.text(5.0, 3.05, "one lap of ETHZMobil per run: (plant, internal model, controller, η, seed)",
+    mid = top + h / 2
+    labels = ["p_ref, v_ref", "u = [T, δ]", "", "x"]
+    for (a, _), (b, _), label in zip(row, row[1:], labels, strict=False):
+        arrow((boxes[a][0] + w, mid), (boxes[b][0], mid), label)
+    arrow((boxes["process"][0] + w / 2, top), (boxes["measure"][0] + 2.2, 0.25 + h / 2))
+    arrow((boxes["measure"][0], 0.25 + h / 2), (boxes["controller"][0] + w / 2, top),
+          "z (measured)")  # fmt: skip
+    ax.text(5.5, 3.25, "one lap of ETHZMobil per run: (plant, internal model, controller, η, seed)",
             ha="center", fontsize=9)  # fmt: skip
     return fig

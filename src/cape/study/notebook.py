@@ -3,6 +3,7 @@ the folder of one run, and writing tables and figures where the workflow expects
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -49,10 +50,18 @@ def series_of(root: str | Path, runs: pd.DataFrame) -> dict[tuple[str, str], pd.
     return out
 
 
+def _number(value: Any) -> str:
+    """Four significant digits; a missing value (no CI from one seed, no lap) as a dash."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "–"
+    return f"{value:.4g}" if isinstance(value, float) else str(value)
+
+
 def save_table(frame: pd.DataFrame, stem: str, latex: bool = True) -> None:
-    """``stem``.csv and .md (and .tex), written atomically."""
+    """``stem``.csv (full precision) and .md (and .tex, four significant digits), atomically."""
     paths = [f"{stem}.csv", f"{stem}.md"] + ([f"{stem}.tex"] if latex else [])
-    write_table(frame, paths)
+    floats = frame.select_dtypes("number").columns
+    write_table(frame, paths, formats=dict.fromkeys(floats, _number))
 
 
 def save(fig: Any, stem: str) -> None:
