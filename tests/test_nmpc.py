@@ -269,3 +269,11 @@ def test_the_compiled_solver_is_built_once_and_reused(cfg, solver_cache: Path) -
     _run(cfg, controller="anmpc")  # the same NLP structure: the same library
     assert sorted(solver_cache.glob("sqpmethod_*.so")) == libraries
     assert libraries[0].stat().st_mtime_ns == stamp
+
+
+def test_a_missing_nmpc_setting_names_the_config_key(cfg) -> None:
+    from cape.errors import CapeError
+
+    del cfg["controllers"]["rnmpc"]["robust"]["dhat_filter"]
+    with pytest.raises(CapeError, match=r"controllers\.rnmpc\.robust.*dhat_filter"):
+        _run(cfg, controller="rnmpc")

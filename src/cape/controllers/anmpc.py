@@ -21,6 +21,7 @@ import numpy as np
 
 from cape.closedloop.internal import N_STATE
 from cape.closedloop.reference import ReferencePoints
+from cape.controllers.base import require
 from cape.controllers.nmpc import NominalNMPC
 from cape.controllers.registry import register_controller
 from cape.tracks.geometry import Projection
@@ -30,7 +31,9 @@ from cape.tracks.geometry import Projection
 class AdaptiveNMPC(NominalNMPC):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
+        require(self.settings, ("adaptive",), f"controllers.{self.name}")
         a = self.settings["adaptive"]
+        require(a, ("every", "alpha", "epsilon", "bounds"), f"controllers.{self.name}.adaptive")
         self.every = int(a["every"])
         self.alpha = float(a["alpha"])
         self.eps = float(a["epsilon"])

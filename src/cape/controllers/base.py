@@ -62,6 +62,17 @@ class PIDLoop:
         )
 
 
+def require(settings: dict[str, Any], keys: tuple[str, ...], where: str) -> None:
+    """A clear error for a missing setting, naming the config key to add."""
+    missing = [k for k in keys if k not in settings]
+    if missing:
+        from cape.errors import CapeError
+
+        raise CapeError(
+            f"config: `{where}` lacks {', '.join(missing)}; add it (see config/config.yaml)"
+        )
+
+
 class Controller:
     """Base class: limits, the previous command, and the interface the rollout calls."""
 

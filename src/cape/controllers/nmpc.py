@@ -25,13 +25,15 @@ import numpy as np
 
 from cape.closedloop.internal import N_STATE
 from cape.closedloop.reference import ReferencePoints
-from cape.controllers.base import Controller, PIDLoop
+from cape.controllers.base import Controller, PIDLoop, require
 from cape.controllers.compiled import make_nlpsol
 from cape.controllers.registry import register_controller
 from cape.errors import CapeError
 from cape.tracks.geometry import Projection
 
 N_INPUT = 2
+SETTINGS = ("horizon", "Q", "R", "margin", "slack_penalty", "solver", "ipopt_max_iter",
+            "sqp_max_iter", "sqp_tol", "qp_max_iter", "speed")  # fmt: skip
 STAGE = N_STATE + N_INPUT + 1  # x_k, u_k, ε_{k+1}
 
 
@@ -43,6 +45,7 @@ class NominalNMPC(Controller):
         super().__init__(*args, **kwargs)
         if self.internal is None or self.track is None:
             raise CapeError(f"controller {self.name} needs an internal model and the track")
+        require(self.settings, SETTINGS, f"controllers.{self.name}")
         self.horizon = int(self.settings["horizon"])
         self._prepare_track_lookup()
         self._index()

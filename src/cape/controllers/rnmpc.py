@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from cape.controllers.base import require
 from cape.controllers.ekf import ExtendedKalmanFilter, NoiseLevels
 from cape.controllers.nmpc import NominalNMPC
 from cape.controllers.registry import register_controller
@@ -27,7 +28,10 @@ class RobustNMPC(NominalNMPC):
 
     def __init__(self, *args: Any, levels: NoiseLevels | None = None, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
+        require(self.settings, ("robust",), f"controllers.{self.name}")
         r = self.settings["robust"]
+        keys = ("m0", "gamma", "r_max", "error_window", "dhat_filter", "ekf_model_std")
+        require(r, keys, f"controllers.{self.name}.robust")
         self.m0, self.gamma, self.r_max = float(r["m0"]), float(r["gamma"]), float(r["r_max"])
         self.window = int(r["error_window"])
         self.beta = float(r["dhat_filter"])
