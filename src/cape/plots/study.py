@@ -136,7 +136,7 @@ def signals_grid(
             if frame is None:
                 continue
             for i, (key, _) in enumerate(signals):
-                axes[i, j].plot(frame["t"], frame[key], lw=0.9,
+                axes[i, j].plot(frame["t"], frame[key], lw=0.9, color=f"C{c % 10}",
                                 ls=CONTROLLER_STYLES[c % len(CONTROLLER_STYLES)],
                                 label=controllers[controller])  # fmt: skip
         axes[0, j].set_title(_label(models, model))
@@ -145,9 +145,12 @@ def signals_grid(
             axes[i, j].grid(True, lw=0.3, alpha=0.5)
             if j == 0:
                 axes[i, j].set_ylabel(ylabel)
-    handles, labels = axes[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=len(labels), frameon=False,
-               bbox_to_anchor=(0.5, -0.01))  # fmt: skip
+    seen: dict[str, object] = {}
+    for ax in axes[0]:  # a controller may be missing from a column (PID has no internal model)
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            seen.setdefault(label, handle)
+    fig.legend(list(seen.values()), list(seen), loc="lower center", ncol=len(seen),
+               frameon=False, bbox_to_anchor=(0.5, -0.01))  # fmt: skip
     fig.tight_layout(rect=(0, 0.04, 1, 1))
     return fig
 
@@ -185,6 +188,12 @@ def trajectories(
                   frameon=False)  # fmt: skip
     fig.tight_layout()
     return fig
+
+
+def controller_looks(controllers: Sequence[str]) -> tuple[dict[str, object], dict[str, str]]:
+    """One line style and colour per controller, the same in every panel and figure."""
+    styles = {c: CONTROLLER_STYLES[i % len(CONTROLLER_STYLES)] for i, c in enumerate(controllers)}
+    return styles, {c: f"C{i % 10}" for i, c in enumerate(controllers)}
 
 
 def block_diagram() -> plt.Figure:
