@@ -126,8 +126,9 @@ def signals_grid(
 ) -> plt.Figure:
     """Rows: signals; columns: models; a line per controller (one run each)."""
     model_names = sorted({m for m, _ in series})
+    height = max(3.4, 1.6 * len(signals) + 0.9)
     fig, axes = plt.subplots(
-        len(signals), len(model_names), figsize=(4.2 * len(model_names), 1.6 * len(signals) + 0.6),
+        len(signals), len(model_names), figsize=(4.2 * len(model_names), height),
         sharex=True, squeeze=False,
     )  # fmt: skip
     for j, model in enumerate(model_names):
@@ -149,9 +150,10 @@ def signals_grid(
     for ax in axes[0]:  # a controller may be missing from a column (PID has no internal model)
         for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
             seen.setdefault(label, handle)
-    fig.legend(list(seen.values()), list(seen), loc="lower center", ncol=len(seen),
-               frameon=False, bbox_to_anchor=(0.5, -0.01))  # fmt: skip
-    fig.tight_layout(rect=(0, 0.04, 1, 1))
+    order = [label for label in controllers.values() if label in seen]
+    fig.legend([seen[k] for k in order], order, loc="lower center", ncol=len(seen),
+               frameon=False, bbox_to_anchor=(0.5, 0.0))  # fmt: skip
+    fig.tight_layout(rect=(0, 0.5 / height, 1, 1))
     return fig
 
 
