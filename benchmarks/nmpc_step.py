@@ -81,11 +81,8 @@ def rebuild_every_step(controller: NominalNMPC, problems: list[Problem], ipopt: 
         built = controller.nlp()
         solver = ca.nlpsol("nmpc", "ipopt", built["problem"], ipopt)
         controller.u_prev = u_prev
-        controller._sol = None
-        _, lbx, ubx = controller._prepare(np.zeros(controller.n_w), x0, throttle)
-        cold = np.zeros(controller.n_w)
-        cold[controller._ix] = x0
-        cold[controller._iu] = u_prev
+        cold = controller.cold_start(x0)
+        _, lbx, ubx = controller._prepare(cold, x0, throttle)
         solver(x0=cold, p=params, lbx=lbx, ubx=ubx, lbg=built["lbg"], ubg=built["ubg"])
         times[i] = time.perf_counter() - start
     return times * 1e3

@@ -87,12 +87,6 @@ class InternalModel:
             return self.model.physical_params(phi)
         return self.model.frozen_params({n: phi[i] for i, n in enumerate(self._fixed_names)})
 
-    @property
-    def has_drivetrain(self) -> bool:
-        """True when Θ = (Cm1, Cr0, Cr2) are parameters of the model; False when it predicts the
-        longitudinal force itself (DPM), where Θ corrects that force additively."""
-        return all(n in self.params(np.ones(self.n_phi)) for n in DRIVETRAIN)
-
     def corrected(self, p: dict[str, Any], theta: Any, vx: Any, throttle: Any) -> dict[str, Any]:
         """The parameters with the drivetrain correction Θ (relative factors, SPEC §7.4)."""
         if theta is None:

@@ -19,6 +19,7 @@ from cape.controllers import controller_class
 from cape.controllers.base import Controller
 from cape.controllers.ekf import NoiseLevels
 from cape.errors import CapeError
+from cape.models.base import LearnedModel
 from cape.models.checkpoint import load_model
 from cape.models.training import build_model
 from cape.tracks.track import Track, load_raceline, load_track
@@ -58,9 +59,23 @@ def load_reference(config: dict[str, Any], raceline: str | None) -> tuple[Refere
     return ReferenceLine(x, y, speed, settings, ts), track
 
 
-def build_internal(config: dict[str, Any], name: str, models_dir: Path) -> InternalModel:
+def frozen_phi(models_dir: Path, model_name: str) -> dict[str, float]:
+    """The frozen Φ of a trained model (SPEC §4.5), or an error saying how to build it."""
+    path = models_dir / model_name / "frozen_phi.json"
+    if not path.is_file():
+        raise CapeError(f"{path}: missing; build it with `snakemake --cores 1 {path}`")
+    return json.loads(path.read_text())["phi"]
+
+
+def build_internal(
+    config: dict[str, Any],
+    name: str,
+    models_dir: Path,
+    loaded: dict[str, LearnedModel] | None = None,
+) -> InternalModel:
     """The controller's internal model by name: a learned model, ``<model>-fixed`` or ``truth``
-    (the ground-truth parameters in the Deep Dynamics structure)."""
+    (the ground-truth parameters in the Deep Dynamics structure). ``loaded`` holds trained
+    models the caller already read (the plant's), so a checkpoint is not loaded twice."""
     models = section(config, "models")
     ts = float(section(config, "data")["ts"])
     kind, model_name = parse_plant(name, models)
@@ -71,15 +86,12 @@ def build_internal(config: dict[str, Any], name: str, models_dir: Path) -> Inter
         return fixed_internal(
             model, {n: truth[n] for n in model.param_names if n in truth}, source="truth"
         )
-    model = load_model(models_dir / str(model_name), expected_name=model_name)
+    model = (loaded or {}).get(str(model_name)) or load_model(
+        models_dir / str(model_name), expected_name=model_name
+    )
     if kind == "learned":
         return InternalModel(model, "learned")
-    frozen_path = models_dir / str(model_name) / "frozen_phi.json"
-    if not frozen_path.is_file():
-        raise CapeError(
-            f"{frozen_path}: missing; build it with `snakemake --cores 1 {frozen_path}`"
-        )
-    return fixed_internal(model, json.loads(frozen_path.read_text())["phi"])
+    return fixed_internal(model, frozen_phi(models_dir, str(model_name)))
 
 
 @dataclass
@@ -130,28 +142,23 @@ def build_run(
     line, track = load_reference(config, raceline)
     disturbances = DisturbancePipeline.from_config(section(config, "disturbances"), eta, seed)
     transform = disturbances.plant_params
+    loaded: dict[str, LearnedModel] = {}
     if kind == "truth":
         plant: Plant = TruthPlant(GROUND_TRUTH.as_dict(), ts, transform)
     else:
         model = load_model(models_dir / str(model_name), expected_name=model_name)
+        loaded[str(model_name)] = model
         if kind == "learned":
             plant = LearnedPlant(model, transform)
         else:
-            frozen_path = models_dir / str(model_name) / "frozen_phi.json"
-            if not frozen_path.is_file():
-                raise CapeError(
-                    f"{frozen_path}: missing; build it with `snakemake --cores 1 {frozen_path}`"
-                )
-            plant = FixedParameterPlant(
-                model, json.loads(frozen_path.read_text())["phi"], transform
-            )
+            plant = FixedParameterPlant(model, frozen_phi(models_dir, str(model_name)), transform)
     cls = controller_class(controller_name, controllers[controller_name])
     default_internal = (
         "truth" if kind == "truth" else f"{model_name}{'-fixed' if kind == 'fixed' else ''}"
     )
     internal_model = None
     if cls.needs_internal_model:
-        internal_model = build_internal(config, internal or default_internal, models_dir)
+        internal_model = build_internal(config, internal or default_internal, models_dir, loaded)
     extra: dict[str, Any] = {}
     if cls.needs_noise_levels:
         extra["levels"] = NoiseLevels.from_pipeline(disturbances)

@@ -130,7 +130,6 @@ class NominalNMPC(Controller):
             lbg += [-np.inf, -np.inf]
             ubg += [0.0, 0.0]
         params = ca.vertcat(*[ca.vec(v) for v in p.values()])
-        self._param_sizes = {k: v.numel() for k, v in p.items()}
         return {
             "problem": {"x": w, "f": cost, "g": ca.vertcat(*g), "p": params},
             "lbg": np.array(lbg, dtype=float),
@@ -255,12 +254,8 @@ class NominalNMPC(Controller):
         self, x0: np.ndarray, params: np.ndarray, throttle: tuple[float, float]
     ) -> tuple[list[ca.DM], bool]:
         """One NLP solve, warm-started from the previous solution (or x0 and u_prev held)."""
-        if self._sol is None:  # cold start: x0 and the previous input held over the horizon
-            cold = np.zeros(self.n_w)
-            cold[self._ix] = x0
-            cold[self._iu] = self.u_prev
-            guess, lbx, ubx = self._prepare(cold, x0, throttle)
-            guess[self._ix[0]] = x0  # the shift does not apply to a cold start
+        if self._sol is None:
+            guess, lbx, ubx = self._prepare(self.cold_start(x0), x0, throttle)
             multipliers = {}
         else:
             guess, lbx, ubx = self._prepare(self._sol[0], x0, throttle)
@@ -276,6 +271,13 @@ class NominalNMPC(Controller):
         )
         out = [sol["x"], sol["lam_x"], sol["lam_g"]]
         return out, bool(self.solver.stats()["success"])
+
+    def cold_start(self, x0: np.ndarray) -> np.ndarray:
+        """x0 and the previous input held over the horizon (its shift is itself)."""
+        w = np.zeros(self.n_w)
+        w[self._ix] = x0
+        w[self._iu] = self.u_prev
+        return w
 
     def throttle_bounds(self, z: np.ndarray, ref: ReferencePoints) -> tuple[float, float]:
         """(T_min, T_max), or the speed loop's throttle held when the model has no throttle path."""

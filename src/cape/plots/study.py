@@ -17,12 +17,12 @@ CONTROLLER_STYLES = ("-", "--", "-.", ":", (0, (5, 1, 1, 1)))
 MARKERS = ("o", "s", "^", "D", "v", "P", "X")
 
 
-def _colour(models: Mapping[str, Mapping], name: str) -> str:
+def model_colour(models: Mapping[str, Mapping], name: str) -> str:
     base = name.removesuffix("-fixed")
     return str(models.get(base, {}).get("color", "0.3"))
 
 
-def _label(models: Mapping[str, Mapping], name: str) -> str:
+def model_label(models: Mapping[str, Mapping], name: str) -> str:
     base = name.removesuffix("-fixed")
     label = str(models.get(base, {}).get("label", base.upper()))
     if name == "truth":
@@ -51,9 +51,9 @@ def eta_sweep(
                 group = group.sort_values("eta")
                 mean = group[f"{metric}_mean"].to_numpy(dtype=float)
                 half = np.nan_to_num(group[f"{metric}_ci"].to_numpy(dtype=float))
-                colour = _colour(models, model)
+                colour = model_colour(models, model)
                 ax.plot(group["eta"], mean, color=colour, marker=MARKERS[k % len(MARKERS)],
-                        ms=3, lw=1.2, label=_label(models, model))  # fmt: skip
+                        ms=3, lw=1.2, label=model_label(models, model))  # fmt: skip
                 ax.fill_between(group["eta"], mean - half, mean + half, color=colour, alpha=0.18)
             ax.grid(True, lw=0.3, alpha=0.5)
             if j == 0:
@@ -108,9 +108,9 @@ def _bar_panel(
             halves.append(float(runs[f"{metric}_ci"].pow(2).mean() ** 0.5) if len(runs) else 0)
         x = np.arange(len(names)) + (k - (len(model_names) - 1) / 2) * width
         ax.bar(x, means, width, yerr=np.nan_to_num(halves), capsize=2,
-               color=_colour(models, model), alpha=0.5 if model.endswith("-fixed") else 0.95,
+               color=model_colour(models, model), alpha=0.5 if model.endswith("-fixed") else 0.95,
                hatch="//" if model.endswith("-fixed") else None, edgecolor="black", lw=0.5,
-               label=_label(models, model))  # fmt: skip
+               label=model_label(models, model))  # fmt: skip
     ax.set_xticks(np.arange(len(names)), [controllers[c] for c in names], fontsize=8)
     ax.set_ylabel(ylabel)
     ax.grid(True, axis="y", lw=0.3, alpha=0.5)
@@ -140,7 +140,7 @@ def signals_grid(
                 axes[i, j].plot(frame["t"], frame[key], lw=0.9, color=f"C{c % 10}",
                                 ls=CONTROLLER_STYLES[c % len(CONTROLLER_STYLES)],
                                 label=controllers[controller])  # fmt: skip
-        axes[0, j].set_title(_label(models, model))
+        axes[0, j].set_title(model_label(models, model))
         axes[-1, j].set_xlabel("time (s)")
         for i, (_, ylabel) in enumerate(signals):
             axes[i, j].grid(True, lw=0.3, alpha=0.5)

@@ -3,7 +3,6 @@ aggregated runs. The notebooks only call these and write the results."""
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -136,11 +135,3 @@ def success_grid(summary: pd.DataFrame, labels: Mapping[str, str]) -> pd.DataFra
     grid = grid[order]
     grid.columns = [f"η={c}" for c in order]
     return grid.reset_index()
-
-
-def fmt_ci(mean: float, half: float, digits: int = 3) -> str:
-    if mean is None or (isinstance(mean, float) and math.isnan(mean)):
-        return "–"
-    if half is None or math.isnan(half):
-        return f"{mean:.{digits}f}"
-    return f"{mean:.{digits}f} ± {half:.{digits}f}"
