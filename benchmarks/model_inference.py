@@ -19,7 +19,6 @@ import torch
 from cape.config import load_config
 from cape.data.windows import make_windows
 from cape.models.checkpoint import load_model
-from cape.models.fast import FastPredictor
 from cape.models.training import build_model
 
 
@@ -55,7 +54,7 @@ def main() -> None:
             model = build_model(name, spec, config["data"]["ts"], seed=0).eval()
             source = "untrained"
         window = make_windows(data, model.history).features[100]
-        fast = FastPredictor(model)
+        fast = model.inference()
         with torch.inference_mode():
             graph = lambda w, m=model: m.phi(torch.as_tensor(w[None]))  # noqa: E731
             eager = timings(graph, window, args.repeats)

@@ -19,6 +19,20 @@ def test_help_lists_subcommands() -> None:
         assert command in out
 
 
+def test_a_rollout_process_imports_neither_pytorch_nor_pandas() -> None:
+    """Thousands of rollout jobs each start a process: what the closed loop and the NMPC
+    import must stay light (PyTorch alone costs seconds to import)."""
+    code = (
+        "import sys, cape.cli, cape.closedloop.setup, cape.controllers.registry as r, cape.io;"
+        "[r.controller_class(n) for n in ('pid', 'rise', 'nmpc', 'anmpc', 'rnmpc')];"
+        "import cape.models.network, cape.models.trained;"
+        "print(sorted(m for m in ('torch', 'pandas', 'scipy.interpolate', 'matplotlib')"
+        " if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
 def test_data_command_writes_the_published_set(
     track_dir: Path, tmp_path: Path, config, datasets
 ) -> None:

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from cape.tracks.geometry import ClosedPath
+from cape.tracks.geometry import ClosedPath, PeriodicCubicSpline
 from cape.tracks.track import Track, load_track
 
 R = 2.0
@@ -97,6 +97,27 @@ def test_window_wraps_around_the_start() -> None:
     circle = ClosedPath(np.cos(theta), np.sin(theta))
     proj = circle.project(math.cos(-0.05), math.sin(-0.05), s_hint=0.02, window=0.2)
     assert proj.s == pytest.approx(circle.length - 0.05, abs=1e-3)
+
+
+def test_periodic_spline_equals_scipys_and_is_c2_across_the_seam() -> None:
+    from scipy.interpolate import CubicSpline
+
+    rng = np.random.default_rng(7)
+    knots = np.concatenate([[0.0], np.cumsum(rng.uniform(0.01, 0.05, 300))])
+    values = rng.normal(size=300)
+    mine = PeriodicCubicSpline(knots, values)
+    ref = CubicSpline(knots, np.append(values, values[0]), bc_type="periodic")
+    s = rng.uniform(0.0, knots[-1], 2000)
+    for nu in (0, 1, 2):
+        scale = np.abs(ref(s, nu)).max()
+        np.testing.assert_allclose(mine(s, nu), ref(s, nu), rtol=0, atol=1e-11 * scale)
+    np.testing.assert_allclose(mine(knots[:-1]), values, atol=1e-13)  # interpolates
+    eps = 1e-9
+    for nu in (0, 1, 2):  # continuous through the seam at the loop's start
+        assert mine(knots[-1] - eps, nu) == pytest.approx(mine(eps, nu), rel=1e-5, abs=1e-6)
+    np.testing.assert_allclose(mine(s + 2 * knots[-1]), mine(s), atol=1e-12)  # wraps
+    with pytest.raises(ValueError, match="increasing knots"):
+        PeriodicCubicSpline(knots[::-1], values)
 
 
 def test_invalid_paths_are_rejected() -> None:

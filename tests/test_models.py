@@ -13,7 +13,9 @@ from cape.data.windows import make_windows
 from cape.errors import CapeError
 from cape.models import model_class
 from cape.models.base import LearnedModel
-from cape.models.fast import FastPredictor
+from cape.models.network import load_network, save_network
+from cape.models.physics import ModelPhysics
+from cape.models.trained import TrainedModel
 from cape.models.training import build_model
 from cape.paper import PARAMETER_COUNT_CHECK
 from cape.vehicle import GROUND_TRUTH, velocity_derivatives
@@ -47,7 +49,7 @@ def models(config) -> dict[str, LearnedModel]:
 def test_registry_maps_names_to_classes(config) -> None:
     for name in ("dpm", "ddm", "epm"):
         cls = model_class(name, config["models"][name])
-        assert issubclass(cls, LearnedModel) and cls.name == name
+        assert issubclass(cls, ModelPhysics) and cls.name == name
     with pytest.raises(CapeError, match=r"unknown model 'mlp'.*models.mlp.module"):
         model_class("mlp")
     with pytest.raises(CapeError, match="cannot import module 'no_such_module'"):
@@ -166,7 +168,10 @@ def test_guard_keeps_every_output_inside_its_bounds(models, config, name: str) -
 
 
 @pytest.mark.parametrize("name", ["dpm", "ddm", "epm"])
-def test_fast_path_matches_the_training_graph(models, datasets, name: str) -> None:
+def test_exported_numpy_network_matches_the_training_graph(
+    models, datasets, name: str, tmp_path
+) -> None:
+    """The closed loop's path: weights exported to network.npz, read back without PyTorch."""
     model = copy.deepcopy(models[name])
     w = make_windows(datasets["ETHZMobil"], model.history)
     flat = w.features.reshape(-1, 7)
@@ -175,7 +180,8 @@ def test_fast_path_matches_the_training_graph(models, datasets, name: str) -> No
     with torch.no_grad():
         ref = model(torch.as_tensor(features)).numpy()
         ref_phi = model.phi(torch.as_tensor(features)).numpy()
-    fast = FastPredictor(model)
+    save_network(tmp_path / "network.npz", model.network_arrays())
+    fast = TrainedModel(model.physics, load_network(tmp_path / "network.npz"))
     pred = np.array([fast.predict(x) for x in features])
     phi = np.array([fast.phi(x) for x in features])
     # the next state, what the closed loop consumes: ≤ 1e-6 relative

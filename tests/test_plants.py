@@ -7,6 +7,7 @@ import pytest
 
 from cape.closedloop.disturbances import ParameterMismatch
 from cape.closedloop.plants import FixedParameterPlant, LearnedPlant, TruthPlant, advance_pose
+from cape.models.trained import TrainedModel
 from cape.models.training import build_model
 from cape.vehicle import GROUND_TRUTH, state_derivative
 
@@ -46,8 +47,7 @@ def test_truth_plant_drives_straight_at_constant_speed() -> None:
 
 
 def test_learned_plant_window_and_step(epm) -> None:
-    plant = LearnedPlant(epm)
-    plant.predictor = _TruePredictor(epm)
+    plant = LearnedPlant(TrainedModel(epm.physics, _TruePredictor(epm)))
     x0 = np.array([1.2, 0.9, 0.0, 1.0, 0.0, 0.0])
     plant.reset(x0)
     np.testing.assert_array_equal(plant.window, np.tile([1.0, 0, 0, 0, 0, 0, 0], (7, 1)))
@@ -63,9 +63,8 @@ def test_learned_plant_window_and_step(epm) -> None:
 
 
 def test_fixed_plant_equals_learned_plant_with_the_same_parameters(epm) -> None:
-    learned = LearnedPlant(epm)
-    learned.predictor = _TruePredictor(epm)
-    fixed = FixedParameterPlant(epm, {n: TRUE_PHI[n] for n in epm.param_names})
+    learned = LearnedPlant(TrainedModel(epm.physics, _TruePredictor(epm)))
+    fixed = FixedParameterPlant(epm.physics, {n: TRUE_PHI[n] for n in epm.param_names})
     x0 = np.array([0.0, 0.0, 0.5, 1.0, 0.0, 0.0])
     learned.reset(x0)
     fixed.reset(x0)
@@ -81,7 +80,7 @@ def test_dpm_fixed_plant_uses_the_drivetrain_law(config) -> None:
         n: GT[n]
         for n in ("Bf", "Cf", "Df", "Ef", "Br", "Cr", "Dr", "Er", "Cm1", "Cm2", "Cr0", "Cr2")
     }
-    plant = FixedParameterPlant(dpm, frozen)
+    plant = FixedParameterPlant(dpm.physics, frozen)
     speeds = []
     for throttle in (0.0, 1.0):
         plant.reset(np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0]))
@@ -94,8 +93,8 @@ def test_mismatch_changes_the_plant_only(epm) -> None:
     mismatch = ParameterMismatch({"m": 1.05, "Bf": 0.95, "Br": 1.05, "Df": 0.9, "Dr": 0.9})
     frozen = {n: TRUE_PHI[n] for n in epm.param_names}
     nominal, changed = (
-        FixedParameterPlant(epm, frozen),
-        FixedParameterPlant(epm, frozen, mismatch.apply),
+        FixedParameterPlant(epm.physics, frozen),
+        FixedParameterPlant(epm.physics, frozen, mismatch.apply),
     )
     assert changed.params["m"] == pytest.approx(GT["m"] * 1.05) and nominal.params["m"] == GT["m"]
     x0 = np.array([0.0, 0.0, 0.0, 2.0, 0.1, 1.0])

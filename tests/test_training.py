@@ -117,6 +117,36 @@ def test_corrupt_or_mismatched_checkpoints_fail_clearly(config, small_data, tmp_
         load_model(tmp_path / "nowhere")
 
 
+def test_exported_network_round_trip_and_its_errors(config, small_data, tmp_path: Path) -> None:
+    """What the closed loop loads: meta.json + network.npz, without PyTorch; a missing, damaged
+    or mismatched export fails with the file and the fix."""
+    import numpy as np
+
+    from cape.models.checkpoint import export_network
+    from cape.models.trained import load_trained
+
+    result = _train(config, "epm", small_data[7], epochs=1)
+    save_model(result.model, tmp_path, {})
+    with pytest.raises(CapeError, match=r"network\.npz: missing; rebuild it with `snakemake"):
+        load_trained(tmp_path, "epm")
+    export_network(tmp_path)
+    trained = load_trained(tmp_path, "epm")
+    window = small_data[7].val.features[0]
+    with torch.no_grad():
+        ref = result.model(torch.as_tensor(window[None]))[0].numpy()
+    np.testing.assert_allclose(trained.predict(window), ref, rtol=1e-6, atol=1e-9)
+    with pytest.raises(CapeError, match="holds model 'epm', expected 'ddm'"):
+        load_trained(tmp_path, "ddm")
+    meta = json.loads((tmp_path / "meta.json").read_text())
+    meta["spec"]["history"] = 9
+    (tmp_path / "meta.json").write_text(json.dumps(meta))
+    with pytest.raises(CapeError, match=r"built for windows of 7 rows .* has 9"):
+        load_trained(tmp_path, "epm")
+    (tmp_path / "network.npz").write_bytes(b"not an npz")
+    with pytest.raises(CapeError, match=r"network\.npz: not a readable network"):
+        load_trained(tmp_path, "epm")
+
+
 class _TruePhi:
     """Stand-in network output: the ground-truth Φ for every window."""
 

@@ -202,10 +202,9 @@ def cmd_rollout(args: argparse.Namespace) -> None:
     import json
 
     import numpy as np
-    import pandas as pd
 
     from cape.closedloop.setup import build_run
-    from cape.io import atomic_open, write_text
+    from cape.io import save_float_columns, write_text
 
     config = _config(args)
     try:
@@ -238,11 +237,39 @@ def cmd_rollout(args: argparse.Namespace) -> None:
         "solve_ms_p90": float(np.percentile(result.solve_ms, 90)) if result.solve_ms.size else None,
     }
     write_text(out / "timing.json", json.dumps(timing, indent=2, sort_keys=True) + "\n")
-    with atomic_open(out / "timeseries.parquet", "wb") as handle:
-        pd.DataFrame(result.series).to_parquet(handle, index=False)
+    save_float_columns(out / "timeseries.parquet", result.series)
     status = "lap" if metrics["success"] else f"failed ({metrics['failure']})"
     run_name = f"{args.plant}/{args.controller} η={args.eta} seed={args.seed}"
     print(f"{run_name}: {status}, lap time {metrics['lap_time']}")
+
+
+def cmd_build_solver(args: argparse.Namespace) -> None:
+    import json
+
+    from cape.closedloop.setup import build_run
+    from cape.io import write_text
+
+    config = _config(args)
+    run = build_run(
+        config,
+        "truth",  # the plant does not enter the controller's NLP
+        args.controller,
+        0.0,
+        0,
+        args.internal,
+        Path(args.models_dir),
+        args.raceline,
+    )
+    library = getattr(run.controller, "library", None)
+    record = {
+        "controller": args.controller,
+        "internal": args.internal,
+        "library": str(library) if library is not None else None,
+        "compiled": library is not None,
+    }
+    write_text(args.out, json.dumps(record, indent=2, sort_keys=True) + "\n")
+    what = f"compiled {library}" if library is not None else "no compiled library (SX VM)"
+    print(f"{args.controller} with internal model {args.internal}: {what}")
 
 
 def cmd_plot_rollout(args: argparse.Namespace) -> None:
@@ -401,6 +428,18 @@ def cmd_freeze(args: argparse.Namespace) -> None:
     print(f"wrote {args.out}: " + ", ".join(f"{k}={v:.4g}" for k, v in frozen.items()))
 
 
+def cmd_export_network(args: argparse.Namespace) -> None:
+    from cape.models.checkpoint import export_network
+    from cape.models.trained import load_physics
+
+    name, sep, folder = args.model.partition("=")
+    if not sep:
+        raise CapeError(f"--model {args.model}: expected NAME=FOLDER, e.g. epm=results/models/epm")
+    load_physics(folder, expected_name=name)  # the folder holds the model it is said to
+    out = export_network(folder, args.out)
+    print(f"wrote {out}: the {name} network for the NumPy closed loop")
+
+
 def cmd_openloop(args: argparse.Namespace) -> None:
     from cape.config import section
     from cape.models.report import openloop_table
@@ -469,8 +508,8 @@ def cmd_plot_models(args: argparse.Namespace) -> None:
 
     from cape.config import section
     from cape.data.windows import make_windows
-    from cape.models.checkpoint import read_meta
     from cape.models.evaluate import predict_phi
+    from cape.models.trained import read_meta
     from cape.plots.models import plot_phi, plot_training_curves
     from cape.plots.style import save_figure
     from cape.vehicle.dynamics import drivetrain_force
@@ -575,6 +614,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_rollout)
 
     p = sub.add_parser(
+        "build-solver",
+        help="build a controller's NLP for an internal model once, compiling it into the cache",
+    )
+    p.add_argument("--controller", required=True, help="controller name from the config (nmpc…)")
+    p.add_argument("--internal", required=True, help=PLANT_KINDS)
+    p.add_argument("--out", required=True, help="record of the compiled library (.json)")
+    p.add_argument("--models-dir", default="results/models", help="folder of the trained models")
+    p.add_argument("--raceline", help="reference .npz (default: results/raceline/<track>.npz)")
+    _add_config_args(p)
+    p.set_defaults(func=cmd_build_solver)
+
+    p = sub.add_parser(
         "aggregate", help="every run's metrics in one table, and per-cell means with 95%% CIs"
     )
     p.add_argument("runs", nargs="*", help="metrics.json files of the runs")
@@ -614,6 +665,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output .json")
     _add_config_args(p)
     p.set_defaults(func=cmd_freeze)
+
+    p = sub.add_parser(
+        "export-network",
+        help="export a trained network to network.npz, which the closed loop runs without PyTorch",
+    )
+    p.add_argument("--model", required=True, metavar="NAME=DIR", help="trained model")
+    p.add_argument("--out", help="output .npz (default: DIR/network.npz)")
+    p.set_defaults(func=cmd_export_network)
 
     p = sub.add_parser("openloop", help="open-loop error table of trained models (SPEC §4.4)")
     _add_models(p)

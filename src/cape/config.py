@@ -9,6 +9,7 @@ change in one section reruns only the jobs that read it.
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -63,10 +64,28 @@ def check_consistency(config: dict[str, Any], source: str = "config") -> None:
             )
 
 
-def validate_config(config: dict[str, Any], source: str = "config") -> dict[str, Any]:
-    """Validate ``config`` against the schema (filling defaults) and the cross-field rules."""
+def _jsonschema() -> Any:
+    """``jsonschema``, imported without its optional IRI format checker.
+
+    That checker (``rfc3987_syntax``, which Jupyter's dependencies install) compiles 38 grammars
+    when it is imported: some 5 s in every ``cape`` process, which would be most of a rollout
+    job. CAPE's schema checks no IRI format, so the import is skipped; a process that imports
+    ``jsonschema`` first keeps whatever it loaded.
+    """
+    if "jsonschema" not in sys.modules and "rfc3987_syntax" not in sys.modules:
+        sys.modules["rfc3987_syntax"] = None  # type: ignore[assignment]  # import → ImportError
+        try:
+            import jsonschema
+        finally:
+            del sys.modules["rfc3987_syntax"]
     import jsonschema
 
+    return jsonschema
+
+
+def validate_config(config: dict[str, Any], source: str = "config") -> dict[str, Any]:
+    """Validate ``config`` against the schema (filling defaults) and the cross-field rules."""
+    jsonschema = _jsonschema()
     schema = yaml.safe_load(SCHEMA_PATH.read_text())
     _fill_defaults(config, schema)
     validator = jsonschema.Draft202012Validator(schema)

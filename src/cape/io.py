@@ -56,3 +56,23 @@ def write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
 def write_text(path: str | os.PathLike[str], text: str) -> None:
     """Write ``text`` (UTF-8) to ``path`` atomically."""
     write_bytes(path, text.encode("utf-8"))
+
+
+def save_float_columns(path: str | os.PathLike[str], columns: dict[str, np.ndarray]) -> None:
+    """Equal-length float columns as a Parquet table, written atomically.
+
+    Built from raw buffers: ``pyarrow.array`` on a NumPy array imports pandas to check its
+    type, a second's start-up in each of thousands of rollout jobs that never use pandas.
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    arrays = []
+    for name, values in columns.items():
+        data = np.ascontiguousarray(values, dtype=np.float64)
+        if data.ndim != 1:
+            raise ValueError(f"column {name!r}: expected one dimension, got shape {data.shape}")
+        arrays.append(pa.Array.from_buffers(pa.float64(), data.size, [None, pa.py_buffer(data)]))
+    table = pa.Table.from_arrays(arrays, names=list(columns))
+    with atomic_open(path, "wb") as handle:
+        pq.write_table(table, handle)

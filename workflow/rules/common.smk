@@ -90,22 +90,40 @@ def uses_internal_model(controller):
     return controller_class(controller, config["controllers"][controller]).needs_internal_model
 
 
-def rollout_inputs(wildcards):
-    """What one run reads: the reference line, and the trained model (and frozen Φ) of the plant
-    and of the controller's internal model."""
-    inputs = {"raceline": raceline_path()}
-    names = {"plant": wildcards.plant}
-    if uses_internal_model(wildcards.controller):
-        names["internal"] = wildcards.internal
-    for role, name in names.items():
-        if name == "truth":
-            continue
-        model = name.removesuffix("-fixed")
-        inputs[f"{role}_weights"] = f"{model_dir(model)}/model.pt"
-        inputs[f"{role}_meta"] = f"{model_dir(model)}/meta.json"
-        if name.endswith("-fixed"):
-            inputs[f"{role}_frozen"] = f"{model_dir(model)}/frozen_phi.json"
+def model_inputs(role, name):
+    """The files a plant or internal model ``name`` is read from: its exported network (a
+    learned Φ) or its frozen Φ, and its meta.json; nothing for the ground truth."""
+    if name == "truth":
+        return {}
+    model = name.removesuffix("-fixed")
+    inputs = {f"{role}_meta": f"{model_dir(model)}/meta.json"}
+    if model == name:
+        inputs[f"{role}_network"] = f"{model_dir(model)}/network.npz"
+    else:
+        inputs[f"{role}_frozen"] = f"{model_dir(model)}/frozen_phi.json"
     return inputs
+
+
+def compiles_solver(controller):
+    """True for a controller whose NLP is compiled to C (built once by the solver rule)."""
+    settings = config["controllers"][controller].get("compile") or {}
+    return uses_internal_model(controller) and bool(settings.get("enabled", False))
+
+
+def rollout_inputs(wildcards):
+    """What one run reads: the reference line, the plant's and the internal model's files, and
+    the controller's compiled solver for that internal model."""
+    inputs = {"raceline": raceline_path(), **model_inputs("plant", wildcards.plant)}
+    if uses_internal_model(wildcards.controller):
+        inputs.update(model_inputs("internal", wildcards.internal))
+    if compiles_solver(wildcards.controller):
+        inputs["solver"] = f"results/solvers/{wildcards.controller}/{wildcards.internal}.json"
+    return inputs
+
+
+def solver_inputs(wildcards):
+    """What building a controller's NLP reads: the reference line and the internal model."""
+    return {"raceline": raceline_path(), **model_inputs("internal", wildcards.internal)}
 
 
 def rollout_config_json(controller):

@@ -44,6 +44,23 @@ rule freeze:
         " --config-json {params.cfg:q} > {log} 2>&1"
 
 
+rule export_network:
+    input:
+        weights="results/models/{model}/model.pt",
+        meta="results/models/{model}/meta.json",
+    output:
+        "results/models/{model}/network.npz",
+    localrule: True
+    params:
+        folder=lambda wildcards, input: os.path.dirname(input.weights),
+    conda:
+        CAPE_ENV
+    log:
+        "results/logs/export/{model}.log",
+    shell:
+        "cape export-network --model {wildcards.model}={params.folder} --out {output} > {log} 2>&1"
+
+
 rule openloop_table:
     input:
         models=trained_models(),

@@ -1,6 +1,24 @@
 # Closed-loop runs (SPEC §5, §8): one job per (study, plant, internal model, controller, η, seed).
 
 
+rule solver:
+    input:
+        unpack(solver_inputs),
+    output:
+        "results/solvers/{controller}/{internal}.json",
+    params:
+        cfg=lambda wildcards: rollout_config_json(wildcards.controller),
+    conda:
+        CAPE_ENV
+    log:
+        "results/logs/solvers/{controller}/{internal}.log",
+    benchmark:
+        "results/benchmarks/solvers/{controller}/{internal}.tsv"
+    shell:
+        "cape build-solver --controller {wildcards.controller} --internal {wildcards.internal}"
+        " --raceline {input.raceline} --out {output} --config-json {params.cfg:q} > {log} 2>&1"
+
+
 rule rollout:
     input:
         unpack(rollout_inputs),

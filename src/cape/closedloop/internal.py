@@ -14,15 +14,14 @@ Model's actuator lag makes the applied input a state.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
+from cape.models.physics import ModelPhysics
+from cape.models.trained import PhiPredictor
 from cape.vehicle.backend import ops_for
 from cape.vehicle.params import GROUND_TRUTH
-
-if TYPE_CHECKING:  # the models pull in PyTorch; a controller's module must stay light to import
-    from cape.models.base import LearnedModel
 
 N_STATE = 8
 DRIVETRAIN = ("Cm1", "Cr0", "Cr2")
@@ -30,22 +29,26 @@ DRIVETRAIN = ("Cm1", "Cr0", "Cr2")
 
 class InternalModel:
     def __init__(
-        self, model: LearnedModel, source: str, fixed: dict[str, float] | None = None
+        self,
+        model: ModelPhysics,
+        source: str,
+        fixed: dict[str, float] | None = None,
+        predictor: PhiPredictor | None = None,
     ) -> None:
         if source not in ("learned", "fixed", "truth"):
             raise ValueError(f"unknown Φ source {source!r}")
-        if (source == "learned") != (fixed is None):
-            raise ValueError("a learned internal model predicts Φ; the others need fixed values")
+        if (source == "learned") != (fixed is None) or (source == "learned") != (
+            predictor is not None
+        ):
+            raise ValueError(
+                "a learned internal model predicts Φ (it needs the network); "
+                "the others need fixed values"
+            )
         self.model = model
         self.source = source
         self.ts = model.ts
         self.throttle_path = model.throttle_path or source != "learned"
-        if source == "learned":
-            from cape.models.fast import FastPredictor
-
-            self.predictor: Any = FastPredictor(model)
-        else:
-            self.predictor = None
+        self.predictor = predictor
         self._fixed_names = tuple(fixed or ())
         self.fixed_phi = None if fixed is None else np.array(list(fixed.values()), dtype=float)
         self.window = np.zeros((model.history, 7))
@@ -140,7 +143,7 @@ class InternalModel:
 
 
 def fixed_internal(
-    model: LearnedModel, frozen: dict[str, float], source: str = "fixed"
+    model: ModelPhysics, frozen: dict[str, float], source: str = "fixed"
 ) -> InternalModel:
     """An internal model with constant Φ (frozen, or the truth)."""
     return InternalModel(model, source, dict(frozen))

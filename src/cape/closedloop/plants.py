@@ -18,8 +18,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from cape.models.base import LearnedModel
-from cape.models.fast import FastPredictor
+from cape.models.physics import ModelPhysics
+from cape.models.trained import TrainedModel
 from cape.vehicle.dynamics import state_derivative
 from cape.vehicle.integrators import rk4_step
 
@@ -60,9 +60,9 @@ def advance_pose(x: np.ndarray, v_next: tuple[float, float, float], ts: float) -
 class _ModelPhysicsPlant:
     """Shared bookkeeping: the state, the last applied input, the model's physics step."""
 
-    def __init__(self, model: LearnedModel, transform: ParamTransform | None) -> None:
-        self.model = model
-        self.ts = model.ts
+    def __init__(self, physics: ModelPhysics, transform: ParamTransform | None) -> None:
+        self.physics = physics
+        self.ts = physics.ts
         self.transform = transform or _identity
         self.x = np.zeros(6)
         self.u_prev = np.zeros(2)
@@ -73,7 +73,7 @@ class _ModelPhysicsPlant:
 
     def _advance(self, u: np.ndarray, p: dict[str, Any]) -> np.ndarray:
         x = self.x
-        v = self.model.step_with_params(
+        v = self.physics.step_with_params(
             x[3], x[4], x[5], (self.u_prev[0], self.u_prev[1]), (u[0], u[1]), p
         )
         self.x = advance_pose(x, v, self.ts)
@@ -84,14 +84,14 @@ class _ModelPhysicsPlant:
 class LearnedPlant(_ModelPhysicsPlant):
     """A trained learned model as the world, with its own window of the last H rows."""
 
-    def __init__(self, model: LearnedModel, transform: ParamTransform | None = None) -> None:
-        super().__init__(model, transform)
-        self.predictor = FastPredictor(model)
-        self.window = np.zeros((model.history, 7))
+    def __init__(self, model: TrainedModel, transform: ParamTransform | None = None) -> None:
+        super().__init__(model.physics, transform)
+        self.predictor = model.network
+        self.window = np.zeros((model.physics.history, 7))
 
     def reset(self, x0: np.ndarray) -> None:
         super().reset(x0)
-        self.window = np.zeros((self.model.history, 7))
+        self.window = np.zeros((self.physics.history, 7))
         self.window[:, 0] = self.x[3]
 
     def step(self, u: np.ndarray) -> np.ndarray:
@@ -99,7 +99,7 @@ class LearnedPlant(_ModelPhysicsPlant):
         row = np.array([x[3], x[4], x[5], fb[0], fb[1], u[0] - fb[0], u[1] - fb[1]])
         self.window = np.vstack([self.window[1:], row])
         phi = self.predictor.phi(self.window)
-        return self._advance(u, self.transform(self.model.physical_params(phi)))
+        return self._advance(u, self.transform(self.physics.physical_params(phi)))
 
 
 class FixedParameterPlant(_ModelPhysicsPlant):
@@ -107,12 +107,12 @@ class FixedParameterPlant(_ModelPhysicsPlant):
 
     def __init__(
         self,
-        model: LearnedModel,
+        physics: ModelPhysics,
         frozen: Mapping[str, float],
         transform: ParamTransform | None = None,
     ) -> None:
-        super().__init__(model, transform)
-        self.params = self.transform(model.frozen_params(dict(frozen)))
+        super().__init__(physics, transform)
+        self.params = self.transform(physics.frozen_params(dict(frozen)))
 
     def step(self, u: np.ndarray) -> np.ndarray:
         return self._advance(u, self.params)

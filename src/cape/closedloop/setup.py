@@ -19,9 +19,8 @@ from cape.controllers import controller_class
 from cape.controllers.base import Controller
 from cape.controllers.ekf import NoiseLevels
 from cape.errors import CapeError
-from cape.models.base import LearnedModel
-from cape.models.checkpoint import load_model
-from cape.models.training import build_model
+from cape.models.registry import model_class
+from cape.models.trained import TrainedModel, load_physics, load_trained
 from cape.tracks.track import Track, load_raceline, load_track
 from cape.vehicle.params import ACTUATOR_LIMITS, GROUND_TRUTH
 
@@ -71,27 +70,27 @@ def build_internal(
     config: dict[str, Any],
     name: str,
     models_dir: Path,
-    loaded: dict[str, LearnedModel] | None = None,
+    loaded: dict[str, TrainedModel] | None = None,
 ) -> InternalModel:
     """The controller's internal model by name: a learned model, ``<model>-fixed`` or ``truth``
     (the ground-truth parameters in the Deep Dynamics structure). ``loaded`` holds trained
-    models the caller already read (the plant's), so a checkpoint is not loaded twice."""
+    models the caller already read (the plant's), so a network is not loaded twice."""
     models = section(config, "models")
     ts = float(section(config, "data")["ts"])
     kind, model_name = parse_plant(name, models)
     if kind == "truth":
         structure = "ddm" if "ddm" in models else next(iter(models))
-        model = build_model(structure, models[structure], ts, seed=0)
+        physics = model_class(structure, models[structure])(models[structure], ts)
         truth = GROUND_TRUTH.as_dict()
         return fixed_internal(
-            model, {n: truth[n] for n in model.param_names if n in truth}, source="truth"
+            physics, {n: truth[n] for n in physics.param_names if n in truth}, source="truth"
         )
-    model = (loaded or {}).get(str(model_name)) or load_model(
-        models_dir / str(model_name), expected_name=model_name
-    )
+    folder = models_dir / str(model_name)
     if kind == "learned":
-        return InternalModel(model, "learned")
-    return fixed_internal(model, frozen_phi(models_dir, str(model_name)))
+        trained = (loaded or {}).get(str(model_name)) or load_trained(folder, model_name)
+        return InternalModel(trained.physics, "learned", predictor=trained.network)
+    physics = load_physics(folder, model_name)
+    return fixed_internal(physics, frozen_phi(models_dir, str(model_name)))
 
 
 @dataclass
@@ -142,16 +141,16 @@ def build_run(
     line, track = load_reference(config, raceline)
     disturbances = DisturbancePipeline.from_config(section(config, "disturbances"), eta, seed)
     transform = disturbances.plant_params
-    loaded: dict[str, LearnedModel] = {}
+    loaded: dict[str, TrainedModel] = {}
     if kind == "truth":
         plant: Plant = TruthPlant(GROUND_TRUTH.as_dict(), ts, transform)
+    elif kind == "learned":
+        trained = load_trained(models_dir / str(model_name), expected_name=model_name)
+        loaded[str(model_name)] = trained
+        plant = LearnedPlant(trained, transform)
     else:
-        model = load_model(models_dir / str(model_name), expected_name=model_name)
-        loaded[str(model_name)] = model
-        if kind == "learned":
-            plant = LearnedPlant(model, transform)
-        else:
-            plant = FixedParameterPlant(model, frozen_phi(models_dir, str(model_name)), transform)
+        physics = load_physics(models_dir / str(model_name), expected_name=model_name)
+        plant = FixedParameterPlant(physics, frozen_phi(models_dir, str(model_name)), transform)
     cls = controller_class(controller_name, controllers[controller_name])
     default_internal = (
         "truth" if kind == "truth" else f"{model_name}{'-fixed' if kind == 'fixed' else ''}"

@@ -33,20 +33,21 @@ def make_nlpsol(
     problem: dict[str, Any],
     opts: dict[str, Any],
     compile_settings: dict[str, Any] | None,
-) -> ca.Function:
-    """``ca.nlpsol`` on ``problem``; with ``compile_settings = {enabled, cache, compiler,
-    flags}`` its functions are loaded from a cached compiled library."""
+) -> tuple[ca.Function, Path | None]:
+    """``ca.nlpsol`` on ``problem``, and the compiled library it runs (None: uncompiled). With
+    ``compile_settings = {enabled, cache, compiler, flags}`` its functions are loaded from a
+    cached compiled library."""
     solver = ca.nlpsol(name, plugin, problem, opts)
     if not compile_settings or not compile_settings.get("enabled", False):
-        return solver
+        return solver, None
     compiler = str(compile_settings.get("compiler", "gcc"))
     if shutil.which(compiler) is None:
         _warn_once(f"compiler {compiler!r} not found; NLP functions run uncompiled (slower)")
-        return solver
+        return solver, None
     flags = [str(f) for f in compile_settings.get("flags", ["-O1"])]
     cache = Path(str(compile_settings.get("cache", "results/solvers")))
     library = compiled_library(solver, plugin, cache, compiler, flags)
-    return ca.nlpsol(name, plugin, str(library), opts)
+    return ca.nlpsol(name, plugin, str(library), opts), library
 
 
 def compiled_library(

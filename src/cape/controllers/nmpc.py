@@ -18,6 +18,7 @@ applies the next input of its previous plan and counts a fallback.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import casadi as ca
@@ -138,7 +139,7 @@ class NominalNMPC(Controller):
 
     def _build(self) -> None:
         built = self.nlp()
-        self.solver = self._solver(built["problem"], str(self.settings["solver"]))
+        self.solver, self.library = self._solver(built["problem"], str(self.settings["solver"]))
         self._prepare = self._wrap(self.solver, built["lbg"], built["ubg"])
 
     def _wrap(self, solver: ca.Function, lbg: np.ndarray, ubg: np.ndarray) -> ca.Function:
@@ -166,7 +167,7 @@ class NominalNMPC(Controller):
         self._lbg_dm, self._ubg_dm = ca.DM(lbg), ca.DM(ubg)
         return ca.Function("nmpc_prepare", [w_prev, x0, throttle], [guess, lbx, ubx])
 
-    def _solver(self, nlp: dict[str, Any], name: str) -> ca.Function:
+    def _solver(self, nlp: dict[str, Any], name: str) -> tuple[ca.Function, Path | None]:
         s = self.settings
         if name == "ipopt":
             opts: dict[str, Any] = {

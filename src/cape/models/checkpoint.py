@@ -1,8 +1,9 @@
 """Saving and loading trained models, with clear errors for corrupt or mismatched files.
 
 A model folder holds ``model.pt`` (the state dict: float32 network weights plus the feature
-scaler and guard bounds), ``meta.json`` (what was trained, on what, how), ``loss.csv`` and
-``frozen_phi.json`` (SPEC §4.5).
+scaler and guard bounds), ``meta.json`` (what was trained, on what, how), ``loss.csv``,
+``frozen_phi.json`` (SPEC §4.5) and ``network.npz`` (the weights exported for the closed loop,
+which reads them without PyTorch: ``cape.models.trained``).
 """
 
 from __future__ import annotations
@@ -17,9 +18,8 @@ import torch
 from cape.errors import CapeError
 from cape.io import write_bytes, write_text
 from cape.models.base import LearnedModel
-from cape.models.registry import model_class
-
-FORMAT_VERSION = 1
+from cape.models.network import save_network
+from cape.models.trained import FORMAT_VERSION, load_physics
 
 
 def save_model(model: LearnedModel, folder: str | Path, meta: dict[str, Any]) -> None:
@@ -31,32 +31,13 @@ def save_model(model: LearnedModel, folder: str | Path, meta: dict[str, Any]) ->
     full = {
         "format": FORMAT_VERSION,
         "name": model.name,
-        "class": f"{type(model).__module__}.{type(model).__qualname__}",
+        "class": f"{type(model.physics).__module__}.{type(model.physics).__qualname__}",
         "ts": model.ts,
         "spec": model.spec,
         "param_names": list(model.param_names),
         **meta,
     }
     write_text(folder / "meta.json", json.dumps(full, indent=2, sort_keys=True) + "\n")
-
-
-def read_meta(folder: str | Path) -> dict[str, Any]:
-    path = Path(folder) / "meta.json"
-    try:
-        meta = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise CapeError(
-            f"{path}: missing; train the model first (snakemake --cores 2 {path})"
-        ) from None
-    except json.JSONDecodeError as exc:
-        raise CapeError(
-            f"{path}: corrupt ({exc}); delete the model folder and train again"
-        ) from exc
-    if meta.get("format") != FORMAT_VERSION:
-        raise CapeError(
-            f"{path}: checkpoint format {meta.get('format')!r}, expected {FORMAT_VERSION}; retrain"
-        )
-    return meta
 
 
 def load_model(folder: str | Path, expected_name: str | None = None) -> LearnedModel:
@@ -66,11 +47,8 @@ def load_model(folder: str | Path, expected_name: str | None = None) -> LearnedM
     corrupt, the model is not the expected one, or the weights do not fit the architecture.
     """
     folder = Path(folder)
-    meta = read_meta(folder)
-    name = meta["name"]
-    if expected_name is not None and name != expected_name:
-        raise CapeError(f"{folder}: holds model {name!r}, expected {expected_name!r}")
-    model = model_class(name, meta["spec"])(meta["spec"], meta["ts"])
+    model = LearnedModel(load_physics(folder, expected_name))
+    name = model.name
     weights = folder / "model.pt"
     try:
         state = torch.load(weights, map_location="cpu", weights_only=True)
@@ -109,3 +87,12 @@ def load_model(folder: str | Path, expected_name: str | None = None) -> LearnedM
     model.load_state_dict(state)
     model.eval()
     return model
+
+
+def export_network(folder: str | Path, out: str | Path | None = None) -> Path:
+    """Write the trained network of ``folder`` as ``network.npz`` (or ``out``) for the closed
+    loop; returns the path written."""
+    folder = Path(folder)
+    target = Path(out) if out is not None else folder / "network.npz"
+    save_network(target, load_model(folder).network_arrays())
+    return target

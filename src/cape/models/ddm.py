@@ -6,7 +6,7 @@ inside its physical bounds by the guard. Its structure contains the data-generat
 
 from __future__ import annotations
 
-from cape.models.base import LearnedModel
+from cape.models.physics import ModelPhysics
 from cape.models.registry import register_model
 
 DDM_PARAMS = (
@@ -16,5 +16,5 @@ DDM_PARAMS = (
 
 
 @register_model("ddm")
-class DeepDynamicsModel(LearnedModel):
+class DeepDynamics(ModelPhysics):
     param_names = DDM_PARAMS

@@ -10,20 +10,16 @@ from __future__ import annotations
 
 from typing import Any
 
-from torch import nn
-
-from cape.models.base import LearnedModel
+from cape.models.physics import ModelPhysics
 from cape.models.registry import register_model
 
 
 @register_model("dpm")
-class DeepPacejkaModel(LearnedModel):
+class DeepPacejka(ModelPhysics):
     param_names = ("Bf", "Cf", "Df", "Ef", "Br", "Cr", "Dr", "Er", "Frx")
     fixed = ("lf", "lr", "m", "Iz")
     throttle_path = False
-
-    def make_output(self, width: int) -> nn.Module:
-        return nn.Linear(width, len(self.param_names))
+    bounded = False
 
     def equation_terms(self, p: dict[str, Any]) -> dict[str, Any]:
         # the frozen variant replaces the predicted force by the drivetrain law (SPEC §4.5)

@@ -9,13 +9,13 @@ from __future__ import annotations
 
 from typing import Any
 
-from cape.models.base import LearnedModel
 from cape.models.ddm import DDM_PARAMS
+from cape.models.physics import ModelPhysics
 from cape.models.registry import register_model
 
 
 @register_model("epm")
-class EnhancedPhysicsModel(LearnedModel):
+class EnhancedPhysics(ModelPhysics):
     param_names = (*DDM_PARAMS, "h", "tau_delta", "tau_T")
 
     def applied_inputs(

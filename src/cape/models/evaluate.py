@@ -15,7 +15,7 @@ import torch
 
 from cape.data.windows import WindowSet, feature_rows
 from cape.models.base import LearnedModel
-from cape.models.fast import FastPredictor
+from cape.models.trained import PhiPredictor
 from cape.vehicle.params import GROUND_TRUTH
 
 STATE_NAMES = ("vx", "vy", "omega")
@@ -83,7 +83,7 @@ def count_flops(model: LearnedModel, window: np.ndarray) -> int:
     return int(counter.get_total_flops())
 
 
-def time_inference(predictor: FastPredictor, window: np.ndarray, repeats: int) -> float:
+def time_inference(predictor: PhiPredictor, window: np.ndarray, repeats: int) -> float:
     """Median wall time (ms) of one Φ prediction, after warm-up."""
     for _ in range(max(10, repeats // 20)):
         predictor.phi(window)
@@ -104,7 +104,7 @@ def complexity_row(model: LearnedModel, window: np.ndarray, repeats: int) -> dic
         "gru_layers": model.gru_layers(),
         "fc_layers": model.fc_layers(),
         "flops_M": count_flops(model, window) / 1e6,
-        "inference_ms": time_inference(FastPredictor(model), window, repeats),
+        "inference_ms": time_inference(model.inference(), window, repeats),
     }
 
 

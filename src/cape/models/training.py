@@ -53,7 +53,7 @@ class TrainingResult:
 def build_model(name: str, spec: dict[str, Any], ts: float, seed: int) -> LearnedModel:
     """A freshly initialised model; the seed fixes its initial weights."""
     torch.manual_seed(seed)
-    return model_class(name, spec)(spec, ts)
+    return LearnedModel(model_class(name, spec)(spec, ts))
 
 
 def train_model(

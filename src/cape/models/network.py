@@ -1,0 +1,174 @@
+"""The learned models' network on NumPy: what the closed loop runs, without PyTorch.
+
+The closed loop asks for Φ of one window thousands of times per run, and a rollout job is a
+process of its own, so two costs matter: the per-window time and the start-up. At batch size
+one PyTorch's per-operation overhead dominates (its GRU runs 49–80 tiny cells of about 20
+operations each: milliseconds per window), and importing it costs seconds per job. So the
+trained weights are exported once to ``network.npz`` (``LearnedModel.network_arrays``) and run
+here: the GRU stack, all cells of all layers, as one compiled loop (Numba, cached on disk after
+the first compilation) in float64, and the fully connected trunk as a handful of NumPy
+matrix–vector products in float32, like the training graph (the trunk's weights, up to 11 MB,
+are read once per call, so their width sets its speed). A test holds the result to the
+training graph (≤ 1e-6 relative).
+"""
+
+from __future__ import annotations
+
+import zipfile
+from collections.abc import Callable, Mapping
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from cape.errors import CapeError
+from cape.io import save_npz
+
+Array = np.ndarray
+NETWORK_FORMAT = 1
+"""Version of ``network.npz``'s layout; a file of another version is rejected with the fix."""
+
+
+def _sigmoid(x: Array) -> Array:
+    return 0.5 * (1.0 + np.tanh(0.5 * x))
+
+
+def _mish(x: Array) -> Array:
+    return x * np.tanh(np.logaddexp(0.0, x))
+
+
+def _gelu(x: Array) -> Array:
+    from scipy.special import erf  # only GELU needs it; scipy.special is slow to import
+
+    return 0.5 * x * (1.0 + erf(x * np.float32(1.0 / np.sqrt(2.0))))
+
+
+ACTIVATIONS: dict[str, Callable[[Array], Array]] = {
+    "mish": _mish,
+    "gelu": _gelu,
+    "relu": lambda x: np.maximum(x, 0.0),
+    "tanh": np.tanh,
+}
+
+
+@numba.njit(cache=True)
+def gru_stack(
+    x: Array, w_ih0: Array, w_ih: Array, w_hh: Array, b_ih: Array, b_hh: Array
+) -> Array:  # pragma: no cover - compiled; tested through NumpyNetwork
+    """PyTorch's multi-layer GRU (zero initial state) on one sequence ``x`` (T, in).
+
+    ``w_ih0`` (in, 3h) is layer 0's input weight, transposed; ``w_ih`` (L−1, h, 3h) the other
+    layers'; ``w_hh`` (L, h, 3h); biases (L, 3h). Gate order r, z, n as in PyTorch:
+    r = σ(Wir·x + bir + Whr·h + bhr), z likewise, n = tanh(Win·x + bin + r·(Whn·h + bhn)),
+    h' = (1 − z)·n + z·h. Returns the last layer's outputs (T, h).
+    """
+    steps = x.shape[0]
+    layers, hidden = w_hh.shape[0], w_hh.shape[1]
+    inp = x
+    gates = np.empty((steps, 3 * hidden))
+    gh = np.empty(3 * hidden)
+    for layer in range(layers):
+        w = w_ih0 if layer == 0 else w_ih[layer - 1]
+        n_in = w.shape[0]
+        for t in range(steps):
+            for j in range(3 * hidden):
+                acc = b_ih[layer, j]
+                for k in range(n_in):
+                    acc += inp[t, k] * w[k, j]
+                gates[t, j] = acc
+        out = np.empty((steps, hidden))
+        h = np.zeros(hidden)
+        for t in range(steps):
+            for j in range(3 * hidden):
+                acc = b_hh[layer, j]
+                for k in range(hidden):
+                    acc += h[k] * w_hh[layer, k, j]
+                gh[j] = acc
+            for j in range(hidden):
+                r = 1.0 / (1.0 + np.exp(-(gates[t, j] + gh[j])))
+                z = 1.0 / (1.0 + np.exp(-(gates[t, hidden + j] + gh[hidden + j])))
+                n = np.tanh(gates[t, 2 * hidden + j] + r * gh[2 * hidden + j])
+                out[t, j] = (1.0 - z) * n + z * h[j]
+            h = out[t].copy()
+        inp = out
+    return inp
+
+
+class NumpyNetwork:
+    """Φ of one window from exported arrays (``LearnedModel.network_arrays``)."""
+
+    def __init__(self, arrays: Mapping[str, Array]) -> None:
+        f64 = lambda name: np.ascontiguousarray(arrays[name], dtype=np.float64)  # noqa: E731
+        f32 = lambda name: np.ascontiguousarray(arrays[name], dtype=np.float32)  # noqa: E731
+        self.mean, self.scale = f64("feature_mean"), f64("feature_scale")
+        self.gru = tuple(f64(f"gru_{k}") for k in ("w_ih0", "w_ih", "w_hh", "b_ih", "b_hh"))
+        self.layers: list[Callable[[Array], Array]] = []
+        linear = [i for i, k in enumerate(arrays["layers"]) if str(k) == "linear"]
+        hidden = self.gru[2].shape[1]
+        self.history = int(arrays[f"layer{linear[0]}_weight"].shape[0]) // hidden
+        """Rows of the window the trunk was built for."""
+        self.n_outputs = int(arrays[f"layer{linear[-1]}_bias"].shape[0])
+        """Components of Φ."""
+        for i, kind in enumerate(str(k) for k in arrays["layers"]):
+            if kind == "linear":
+                self.layers.append(_linear(f32(f"layer{i}_weight"), f32(f"layer{i}_bias")))
+            elif kind == "layer_norm":
+                eps = float(arrays[f"layer{i}_eps"])
+                self.layers.append(_layer_norm(f32(f"layer{i}_weight"), f32(f"layer{i}_bias"), eps))
+            elif kind in ACTIVATIONS:
+                self.layers.append(ACTIVATIONS[kind])
+            else:
+                raise ValueError(f"layer {i}: unknown kind {kind!r}")
+        self.guard: tuple[Array, Array] | None = None
+        if "guard_lower" in arrays:
+            self.guard = (f64("guard_lower"), f64("guard_upper"))
+
+    def phi(self, window: Array) -> Array:
+        """Φ (P,) in float64 for one unscaled window (H, 7)."""
+        x = (window - self.mean) / self.scale
+        x = gru_stack(x, *self.gru)
+        y = x.reshape(-1).astype(np.float32)
+        for layer in self.layers:
+            y = layer(y)
+        y = y.astype(np.float64)
+        if self.guard is not None:
+            lower, upper = self.guard
+            y = np.clip(lower + _sigmoid(y) * (upper - lower), lower, upper)
+        return y
+
+
+def _linear(weight: Array, bias: Array) -> Callable[[Array], Array]:
+    return lambda x: x @ weight + bias
+
+
+def _layer_norm(weight: Array, bias: Array, eps: float) -> Callable[[Array], Array]:
+    def layer_norm(x: Array) -> Array:
+        centred = x - x.mean()
+        return centred / np.sqrt((centred * centred).mean() + eps) * weight + bias
+
+    return layer_norm
+
+
+def save_network(path: str | Path, arrays: Mapping[str, Array]) -> None:
+    """Write the exported network atomically."""
+    save_npz(path, **arrays)
+
+
+def load_network(path: str | Path) -> NumpyNetwork:
+    """The network in ``path``, or a ``CapeError`` naming the file and the fix."""
+    path = Path(path)
+    fix = f"rebuild it with `snakemake --cores 1 {path}`"
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            arrays = {k: npz[k] for k in npz.files}
+    except FileNotFoundError:
+        raise CapeError(f"{path}: missing; {fix}") from None
+    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+        raise CapeError(f"{path}: not a readable network ({exc}); delete it and {fix}") from exc
+    version = int(arrays["format"]) if "format" in arrays else None
+    if version != NETWORK_FORMAT:
+        raise CapeError(f"{path}: network format {version}, expected {NETWORK_FORMAT}; {fix}")
+    try:
+        return NumpyNetwork(arrays)
+    except (KeyError, ValueError, IndexError) as exc:
+        raise CapeError(f"{path}: incomplete network ({exc}); delete it and {fix}") from exc

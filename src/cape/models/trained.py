@@ -1,0 +1,101 @@
+"""A trained model as the closed loop sees it: its physics and its network on NumPy.
+
+Read from a model folder's ``meta.json`` (what was trained) and ``network.npz`` (the weights
+exported from ``model.pt``), without PyTorch.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from cape.errors import CapeError
+from cape.models.physics import ModelPhysics
+from cape.models.registry import model_class
+
+FORMAT_VERSION = 1
+"""Version of ``meta.json``'s layout."""
+
+
+class PhiPredictor(Protocol):
+    def phi(self, window: np.ndarray) -> np.ndarray: ...
+
+
+@dataclass
+class TrainedModel:
+    """Window → Φ (``network``) → one Euler step (``physics``), one window at a time."""
+
+    physics: ModelPhysics
+    network: PhiPredictor
+
+    def phi(self, window: np.ndarray) -> np.ndarray:
+        """Φ (P,) for one unscaled window (H, 7)."""
+        return self.network.phi(window)
+
+    def predict(self, window: np.ndarray) -> np.ndarray:
+        """Next [vx, vy, ω] (3,) for one unscaled window (H, 7)."""
+        last = window[-1]
+        nxt = self.physics.step_velocities(
+            last[0],
+            last[1],
+            last[2],
+            (last[3], last[4]),
+            (last[3] + last[5], last[4] + last[6]),
+            self.phi(window),
+        )
+        return np.array(nxt, dtype=np.float64)
+
+
+def read_meta(folder: str | Path) -> dict[str, Any]:
+    """A model folder's ``meta.json``, checked for its format version."""
+    path = Path(folder) / "meta.json"
+    try:
+        meta = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise CapeError(
+            f"{path}: missing; train the model first (snakemake --cores 2 {path})"
+        ) from None
+    except json.JSONDecodeError as exc:
+        raise CapeError(
+            f"{path}: corrupt ({exc}); delete the model folder and train again"
+        ) from exc
+    if meta.get("format") != FORMAT_VERSION:
+        raise CapeError(
+            f"{path}: checkpoint format {meta.get('format')!r}, expected {FORMAT_VERSION}; retrain"
+        )
+    return meta
+
+
+def load_physics(folder: str | Path, expected_name: str | None = None) -> ModelPhysics:
+    """The physics of the model trained in ``folder`` (its name, spec and Ts from meta.json)."""
+    meta = read_meta(folder)
+    name = meta["name"]
+    if expected_name is not None and name != expected_name:
+        raise CapeError(f"{folder}: holds model {name!r}, expected {expected_name!r}")
+    return model_class(name, meta["spec"])(meta["spec"], meta["ts"])
+
+
+def load_trained(folder: str | Path, expected_name: str | None = None) -> TrainedModel:
+    """The trained model in ``folder`` for the closed loop, or a ``CapeError`` with the fix."""
+    from cape.models.network import load_network  # Numba: only a learned Φ needs it
+
+    physics = load_physics(folder, expected_name)
+    network = load_network(Path(folder) / "network.npz")
+    shape, expected = (
+        (network.history, network.n_outputs),
+        (
+            physics.history,
+            len(physics.param_names),
+        ),
+    )
+    if shape != expected:
+        raise CapeError(
+            f"{Path(folder) / 'network.npz'}: built for windows of {shape[0]} rows and "
+            f"{shape[1]} parameters, the {physics.name} model of meta.json has {expected[0]} and "
+            f"{expected[1]}; delete it and export it again from model.pt"
+        )
+    return TrainedModel(physics, network)
