@@ -14,13 +14,15 @@ from cape.config import REPO_ROOT
 SNAKEFILE = REPO_ROOT / "Snakefile"
 
 
-def _snakemake(*args: str, cwd: Path = REPO_ROOT) -> subprocess.CompletedProcess[str]:
+def _snakemake(
+    *args: str, cwd: Path = REPO_ROOT, timeout: float = 600
+) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         ["snakemake", "-s", str(SNAKEFILE), *args],
         cwd=cwd,
         capture_output=True,
         text=True,
-        timeout=600,
+        timeout=timeout,
     )
 
 
@@ -122,7 +124,10 @@ def test_the_smoke_study_builds_every_table_figure_and_notebook(tmp_path: Path) 
 
     work = _workdir(tmp_path)
     shutil.copy(REPO_ROOT / "config" / "smoke.yaml", work / "config" / "smoke.yaml")
-    result = _snakemake("--cores", "2", "-d", str(work), "--configfile", "config/smoke.yaml")
+    # about 4 minutes on 2 idle cores; the timeout only guards against a hang
+    result = _snakemake(
+        "--cores", "2", "-d", str(work), "--configfile", "config/smoke.yaml", timeout=1800
+    )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     runs = pd.read_parquet(work / "results/study/runs.parquet")
     assert set(runs["study"]) == {"learned", "bicycle", "ablation", "truth"}
