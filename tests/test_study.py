@@ -12,7 +12,7 @@ import pytest
 
 from cape.errors import CapeError
 from cape.study.aggregate import collect_runs, mean_ci, summarise
-from cape.study.scorecard import learned_claims
+from cape.study.scorecard import at_a_glance, learned_claims
 from cape.study.tables import (
     best_controller,
     controller_parameters,
@@ -140,3 +140,10 @@ def test_the_scorecard_recomputes_the_claims_per_seed() -> None:
     assert speed["ours_mean"].iloc[0] == pytest.approx(100.0) and speed["holds"].iloc[0] == "yes"
     fails = table[table["claim"].str.startswith("NMPC-family")].set_index("item")
     assert fails.loc["DPM", "ours_mean"] == 1 and fails.loc["EPM", "holds"] == "yes"
+
+    page = at_a_glance(table, pd.DataFrame(rows))
+    assert page.startswith("# CAPE results at a glance")
+    assert "| learned | 27 | 89% |" in page  # 3 of the 27 runs (DPM, nominal NMPC) failed
+    held = int((table["holds"] == "yes").sum())
+    assert f"holds for {held} of {len(table)} rows" in page
+    assert page.count("\n| adaptive NMPC lap time") == 1 + 3  # its summary, then its 3 rows

@@ -2,13 +2,20 @@
 
 A new model or controller is one module whose class is decorated with the registry's
 ``register(name)``, plus one config entry naming that module (``<kind>s.<name>.module``);
-the registry imports the module the first time the name is asked for.
+the registry imports the module the first time the name is asked for. The module is an
+importable dotted name (``mypackage.mymodel``) or a ``.py`` file path, relative to the working
+directory or else to the repository (``examples/velocity_mlp.py``), so a new model needs no
+package and no install (docs/extending.md).
 """
 
 from __future__ import annotations
 
+import hashlib
 import importlib
+import importlib.util
+import sys
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 from cape.errors import CapeError
@@ -47,10 +54,11 @@ class Registry(Generic[T]):
                     f"or use one of {sorted(self.builtin_modules)}"
                 )
             try:
-                importlib.import_module(module)
-            except ImportError as exc:
+                _import(module)
+            except Exception as exc:  # ImportError, or the module's own error (SyntaxError…)
                 raise CapeError(
-                    f"{self.kind} {name!r}: cannot import module {module!r} ({exc})"
+                    f"{self.kind} {name!r}: cannot import module {module!r} "
+                    f"({type(exc).__name__}: {exc})"
                 ) from exc
             if name not in self._classes:
                 raise CapeError(
@@ -58,3 +66,31 @@ class Registry(Generic[T]):
                     f"class with @register_{self.kind}({name!r})"
                 )
         return self._classes[name]
+
+
+def _import(module: str) -> None:
+    """Import a dotted module name, or execute a ``.py`` file as a module (once)."""
+    if not module.endswith(".py"):
+        importlib.import_module(module)
+        return
+    from cape.config import REPO_ROOT
+
+    path = Path(module)
+    if not path.is_absolute() and not path.is_file():
+        path = REPO_ROOT / path
+    if not path.is_file():
+        raise ImportError(f"no file {module} (looked in {Path.cwd()} and {REPO_ROOT})")
+    digest = hashlib.sha256(str(path.resolve()).encode()).hexdigest()[:12]
+    key = f"cape_extension_{path.stem}_{digest}"
+    if key in sys.modules:
+        return
+    spec = importlib.util.spec_from_file_location(key, path)
+    if spec is None or spec.loader is None:
+        raise ImportError(f"{module}: not a Python module")
+    loaded = importlib.util.module_from_spec(spec)
+    sys.modules[key] = loaded
+    try:
+        spec.loader.exec_module(loaded)
+    except BaseException:
+        del sys.modules[key]
+        raise

@@ -49,7 +49,7 @@ rule notebook_setup:
 
 
 rule notebook_closed_loop:
-    """Figures 2, 3, 7–11 and tables 6–7 of one study (learned or truth)."""
+    """Figures 2, 3, 7–11 and tables 6–7 of one study (learned, truth, or one a user adds)."""
     input:
         notebook=f"{NOTEBOOKS}/closed_loop.ipynb",
         runs="results/study/runs.parquet",
@@ -67,7 +67,7 @@ rule notebook_closed_loop:
         notebook="results/notebooks/closed_loop_{study}.ipynb",
         html="results/notebooks/closed_loop_{study}.html",
     wildcard_constraints:
-        study="learned|truth",
+        study="|".join(CLOSED_LOOP_STUDIES) or "learned",
     params:
         cfg=lambda wildcards: config_json("tracks", "data", "reference", "controllers", "models", "study"),
     conda:
@@ -155,6 +155,7 @@ rule notebook_scorecard:
             "results/tables/table08_scorecard.md", caption="../report/scorecard.rst", category="Claims"
         ),
         multiext("results/tables/table08_scorecard", ".csv", ".tex"),
+        report("results/RESULTS.md", caption="../report/glance.rst", category="Claims"),
         notebook="results/notebooks/scorecard.ipynb",
         html="results/notebooks/scorecard.html",
     params:

@@ -1,7 +1,8 @@
 """The network half of a learned model (SPEC §4), in PyTorch: window → Φ.
 
-Every model shares the same network: a GRU over the standardised window, a fully connected
-trunk over the GRU's outputs, and an output layer that is a physics guard when Φ is bounded.
+Every model shares the same network: a GRU over the standardised window (none when
+``gru.layers`` is 0: a plain MLP), a fully connected trunk over the GRU's outputs (or the
+window's rows), and an output layer that is a physics guard when Φ is bounded.
 What differs between models, the physics after Φ, is a ``ModelPhysics`` (torch-free, in
 ``cape.models.physics``); ``LearnedModel`` holds one and answers for it, so ``model.param_names``
 or ``model.step_velocities(...)`` read the model's physics.
@@ -31,9 +32,14 @@ class LearnedModel(nn.Module):
         self.physics = physics
         spec = physics.spec
         gru, head = spec["gru"], spec["head"]
-        self.gru = nn.GRU(N_FEATURES, gru["hidden"], gru["layers"], batch_first=True)
+        self.gru = (
+            nn.GRU(N_FEATURES, gru["hidden"], gru["layers"], batch_first=True)
+            if gru["layers"] > 0
+            else None
+        )
+        row = gru["hidden"] if self.gru is not None else N_FEATURES
         self.trunk = trunk(
-            physics.history * gru["hidden"],
+            physics.history * row,
             head["width"],
             head["layers"],
             head["activation"],
@@ -64,8 +70,10 @@ class LearnedModel(nn.Module):
 
     def phi(self, windows: torch.Tensor) -> torch.Tensor:
         """Φ (B, P) in float64 for unscaled windows (B, H, 7), whatever the network's precision."""
-        z = ((windows - self.feature_mean) / self.feature_scale).to(self.gru.weight_ih_l0.dtype)
-        out, _ = self.gru(z)  # hidden state starts at zero for every window
+        dtype = next(self.output.parameters()).dtype
+        out = ((windows - self.feature_mean) / self.feature_scale).to(dtype)
+        if self.gru is not None:
+            out, _ = self.gru(out)  # hidden state starts at zero for every window
         return self.output(self.trunk(out.reshape(out.shape[0], -1))).to(torch.float64)
 
     def forward(self, windows: torch.Tensor) -> torch.Tensor:
@@ -85,22 +93,23 @@ class LearnedModel(nn.Module):
         def arr(t: torch.Tensor) -> np.ndarray:
             return t.detach().cpu().numpy()
 
-        gru = self.gru
-        n = gru.num_layers
         out: dict[str, np.ndarray] = {
             "format": np.array(NETWORK_FORMAT),
             "feature_mean": arr(self.feature_mean),
             "feature_scale": arr(self.feature_scale),
-            "gru_w_ih0": arr(gru.weight_ih_l0).T,
-            "gru_w_ih": (
+        }
+        gru = self.gru
+        if gru is not None:
+            n = gru.num_layers
+            out["gru_w_ih0"] = arr(gru.weight_ih_l0).T
+            out["gru_w_ih"] = (
                 np.stack([arr(getattr(gru, f"weight_ih_l{i}")).T for i in range(1, n)])
                 if n > 1
                 else np.zeros((0, gru.hidden_size, 3 * gru.hidden_size), np.float32)
-            ),
-            "gru_w_hh": np.stack([arr(getattr(gru, f"weight_hh_l{i}")).T for i in range(n)]),
-            "gru_b_ih": np.stack([arr(getattr(gru, f"bias_ih_l{i}")) for i in range(n)]),
-            "gru_b_hh": np.stack([arr(getattr(gru, f"bias_hh_l{i}")) for i in range(n)]),
-        }
+            )
+            out["gru_w_hh"] = np.stack([arr(getattr(gru, f"weight_hh_l{i}")).T for i in range(n)])
+            out["gru_b_ih"] = np.stack([arr(getattr(gru, f"bias_ih_l{i}")) for i in range(n)])
+            out["gru_b_hh"] = np.stack([arr(getattr(gru, f"bias_hh_l{i}")) for i in range(n)])
         kinds: list[str] = []
         activation = {cls: name for name, cls in ACTIVATIONS.items()}
         last = self.output.linear if isinstance(self.output, PhysicsGuard) else self.output

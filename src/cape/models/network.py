@@ -101,10 +101,12 @@ class NumpyNetwork:
         f64 = lambda name: np.ascontiguousarray(arrays[name], dtype=np.float64)  # noqa: E731
         f32 = lambda name: np.ascontiguousarray(arrays[name], dtype=np.float32)  # noqa: E731
         self.mean, self.scale = f64("feature_mean"), f64("feature_scale")
-        self.gru = tuple(f64(f"gru_{k}") for k in ("w_ih0", "w_ih", "w_hh", "b_ih", "b_hh"))
+        self.gru: tuple[Array, ...] | None = None  # no GRU: the trunk reads the window's rows
+        if "gru_w_hh" in arrays:
+            self.gru = tuple(f64(f"gru_{k}") for k in ("w_ih0", "w_ih", "w_hh", "b_ih", "b_hh"))
         self.layers: list[Callable[[Array], Array]] = []
         linear = [i for i, k in enumerate(arrays["layers"]) if str(k) == "linear"]
-        hidden = self.gru[2].shape[1]
+        hidden = self.gru[2].shape[1] if self.gru is not None else self.mean.size
         self.history = int(arrays[f"layer{linear[0]}_weight"].shape[0]) // hidden
         """Rows of the window the trunk was built for."""
         self.n_outputs = int(arrays[f"layer{linear[-1]}_bias"].shape[0])
@@ -126,7 +128,8 @@ class NumpyNetwork:
     def phi(self, window: Array) -> Array:
         """Φ (P,) in float64 for one unscaled window (H, 7)."""
         x = (window - self.mean) / self.scale
-        x = gru_stack(x, *self.gru)
+        if self.gru is not None:
+            x = gru_stack(x, *self.gru)
         y = x.reshape(-1).astype(np.float32)
         for layer in self.layers:
             y = layer(y)
