@@ -50,8 +50,10 @@ def test_registry_maps_names_to_classes(config) -> None:
     for name in ("dpm", "ddm", "epm"):
         cls = model_class(name, config["models"][name])
         assert issubclass(cls, ModelPhysics) and cls.name == name
-    with pytest.raises(CapeError, match=r"unknown model 'mlp'.*models.mlp.module"):
-        model_class("mlp")
+    with pytest.raises(CapeError, match=r"unknown model 'gpt'.*models.gpt.module"):
+        model_class("gpt")
+    with pytest.raises(CapeError, match=r"cannot import module 'mine/gpt\.py' \(ImportError: no"):
+        model_class("gpt", {"module": "mine/gpt.py"})
     with pytest.raises(CapeError, match="cannot import module 'no_such_module'"):
         model_class("mine", {"module": "no_such_module"})
     with pytest.raises(CapeError, match="does not register it"):
