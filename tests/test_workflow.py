@@ -131,7 +131,13 @@ def test_the_smoke_study_builds_every_table_figure_and_notebook(tmp_path: Path) 
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     runs = pd.read_parquet(work / "results/study/runs.parquet")
     assert set(runs["study"]) == {"learned", "bicycle", "ablation", "truth"}
-    assert len(runs) == 97 and runs["seed"].eq(0).all()
+    # the smoke grid by hand (config/smoke.yaml; one seed; PID and RISE have no internal model):
+    # learned 3 plants × 5 controllers × 2 η; bicycle 3 × 2 × 2; ablation 3 plants × 3 internal
+    # × nominal NMPC × η 0; truth (PID + 2 NMPCs × 2 internal models) × 2 η
+    expected = 3 * 5 * 2 + 3 * 2 * 2 + 3 * 3 * 1 * 1 + (1 + 2 * 2) * 2
+    assert len(runs) == expected == 61 and runs["seed"].eq(0).all()
+    assert len(list((work / "results/runs").rglob("metrics.json"))) == expected
+    assert "# CAPE results at a glance" in (work / "results/RESULTS.md").read_text()
     assert set(runs["eta_label"]) == {"0", "1"}
     figures = sorted((work / "results/figures").rglob("fig*.png"))
     numbers = {p.name[3:5] for p in figures}
