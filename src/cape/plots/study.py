@@ -79,12 +79,17 @@ def bars(
     """Grouped bars, one panel per metric: per controller, one bar per model, the mean over the
     η grid of the per-η means, with the root-mean-square of their 95 % CIs as error bar."""
     fig, axes = plt.subplots(
-        len(metrics), 1, figsize=(1.6 + 1.5 * len(controllers), 3.0 * len(metrics)),
+        len(metrics), 1, figsize=(max(7.0, 1.6 + 1.5 * len(controllers)), 3.0 * len(metrics)),
         squeeze=False,
     )  # fmt: skip
     for ax, (metric, ylabel) in zip(axes[:, 0], metrics, strict=True):
         _bar_panel(ax, summary, metric, ylabel, controllers, models, order)
-    fig.tight_layout()
+    # one legend for every panel, above them, so that it never covers a panel's tick labels
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    ncol = max(1, min(len(labels), int(fig.get_figwidth() // 2.6)))  # ≈2.6 in per entry
+    fig.legend(handles, labels, fontsize=8, ncol=ncol, frameon=False, loc="upper center")
+    rows = -(-max(len(labels), 1) // ncol)
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 1.0 - 0.22 * rows / fig.get_figheight() - 0.02))
     return fig
 
 
@@ -114,8 +119,6 @@ def _bar_panel(
     ax.set_xticks(np.arange(len(names)), [controllers[c] for c in names], fontsize=8)
     ax.set_ylabel(ylabel)
     ax.grid(True, axis="y", lw=0.3, alpha=0.5)
-    ax.legend(fontsize=8, ncol=min(4, len(model_names)), frameon=False, loc="lower center",
-              bbox_to_anchor=(0.5, 1.0))  # fmt: skip
 
 
 def signals_grid(
