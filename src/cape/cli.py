@@ -430,13 +430,11 @@ def cmd_freeze(args: argparse.Namespace) -> None:
 
 def cmd_export_network(args: argparse.Namespace) -> None:
     from cape.models.checkpoint import export_network
-    from cape.models.trained import load_physics
 
     name, sep, folder = args.model.partition("=")
     if not sep:
         raise CapeError(f"--model {args.model}: expected NAME=FOLDER, e.g. epm=results/models/epm")
-    load_physics(folder, expected_name=name)  # the folder holds the model it is said to
-    out = export_network(folder, args.out)
+    out = export_network(folder, args.out, expected_name=name)
     print(f"wrote {out}: the {name} network for the NumPy closed loop")
 
 

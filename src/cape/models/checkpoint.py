@@ -89,10 +89,12 @@ def load_model(folder: str | Path, expected_name: str | None = None) -> LearnedM
     return model
 
 
-def export_network(folder: str | Path, out: str | Path | None = None) -> Path:
+def export_network(
+    folder: str | Path, out: str | Path | None = None, expected_name: str | None = None
+) -> Path:
     """Write the trained network of ``folder`` as ``network.npz`` (or ``out``) for the closed
     loop; returns the path written."""
     folder = Path(folder)
     target = Path(out) if out is not None else folder / "network.npz"
-    save_network(target, load_model(folder).network_arrays())
+    save_network(target, load_model(folder, expected_name).network_arrays())
     return target
