@@ -32,7 +32,7 @@ def _write_run(root: Path, study: str, plant: str, internal: str, controller: st
         "seed": seed, "success": success, "failure": None if success else "off_track",
         "lap_time": lap if success else None, "lap_time_penalised": lap if success else 15.0,
         "mean_abs_ey": ey, "mean_abs_ey_penalised": ey if success else 0.23, "steps": 100,
-        "fallbacks": 0,
+        "fallbacks": 0, "time_limit": 15.0,
     }  # fmt: skip
     (folder / "metrics.json").write_text(json.dumps(metrics))
     (folder / "timing.json").write_text(json.dumps({"solve_ms_median": 1.0}))
@@ -72,6 +72,24 @@ def test_summary_counts_successes_and_penalises_failures(tmp_path: Path) -> None
     assert cell["lap_time_mean"] == pytest.approx(7.5)  # the two laps only
     assert cell["lap_time_penalised_mean"] == pytest.approx((7 + 8 + 15 + 15) / 4)
     assert cell["mean_abs_ey_penalised_mean"] == pytest.approx((0.01 + 0.02 + 0.23 + 0.23) / 4)
+
+
+def test_the_drawn_interval_stays_where_runs_can_be(tmp_path: Path) -> None:
+    # two laps of 7 s and three failures (penalty 15 s, error 0.23 m): the t-interval of the
+    # penalised mean reaches above 15 s and the one of the error below 0 m
+    paths = [
+        _write_run(tmp_path, "learned", "epm", "epm", "pid", "1", s, s < 2, 7.0, 0.01)
+        for s in range(5)
+    ]
+    (cell,) = summarise(collect_runs(paths, STUDIES)).to_dict("records")
+    lap_mean, lap_half, _ = mean_ci([7.0, 7.0, 15.0, 15.0, 15.0])
+    assert cell["lap_time_penalised_ci"] == pytest.approx(lap_half)
+    assert lap_mean + lap_half > 15.0
+    assert cell["lap_time_penalised_hi"] == 15.0  # the time limit, the most a run can count
+    assert cell["lap_time_penalised_lo"] == pytest.approx(lap_mean - lap_half)
+    ey_mean, ey_half, _ = mean_ci([0.01, 0.01, 0.23, 0.23, 0.23])
+    assert ey_mean - ey_half < 0.0 and cell["mean_abs_ey_penalised_lo"] == 0.0
+    assert cell["mean_abs_ey_penalised_hi"] == pytest.approx(ey_mean + ey_half)
 
 
 def _summary(rows: list[tuple]) -> pd.DataFrame:
@@ -147,3 +165,13 @@ def test_the_scorecard_recomputes_the_claims_per_seed() -> None:
     held = int((table["holds"] == "yes").sum())
     assert f"holds for {held} of {len(table)} rows" in page
     assert page.count("\n| adaptive NMPC lap time") == 1 + 3  # its summary, then its 3 rows
+
+
+def test_signal_axes_ignore_the_samples_of_a_diverging_plant() -> None:
+    from cape.plots.study import robust_limits
+
+    lap = np.sin(np.linspace(0.0, 20.0, 2000)) * 5.0  # ω within ±5 rad/s
+    assert robust_limits(lap) is None  # nothing to hide: Matplotlib's own limits
+    diverged = np.concatenate([lap, [-20.0, -60.0, -100.0]])  # the last steps of a failed run
+    low, high = robust_limits(diverged)
+    assert -7.0 < low < -5.0 and 5.0 < high < 7.0

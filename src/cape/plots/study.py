@@ -30,6 +30,19 @@ def model_label(models: Mapping[str, Mapping], name: str) -> str:
     return f"{label} (fixed)" if name.endswith("-fixed") else label
 
 
+def interval(cells: pd.DataFrame, metric: str) -> tuple[np.ndarray, np.ndarray]:
+    """Each cell's 95 % CI of ``metric``: within the metric's range when the summary has it
+    (``_lo``, ``_hi``), else mean ± half-width; a single run's cell collapses to its mean."""
+    mean = cells[f"{metric}_mean"].to_numpy(dtype=float)
+    if f"{metric}_lo" in cells:
+        low = cells[f"{metric}_lo"].to_numpy(dtype=float)
+        high = cells[f"{metric}_hi"].to_numpy(dtype=float)
+    else:
+        half = np.nan_to_num(cells[f"{metric}_ci"].to_numpy(dtype=float))
+        low, high = mean - half, mean + half
+    return np.where(np.isnan(low), mean, low), np.where(np.isnan(high), mean, high)
+
+
 def eta_sweep(
     summary: pd.DataFrame,
     metrics: Sequence[tuple[str, str]],
@@ -50,11 +63,11 @@ def eta_sweep(
             for k, (model, group) in enumerate(cells.groupby("model", sort=True)):
                 group = group.sort_values("eta")
                 mean = group[f"{metric}_mean"].to_numpy(dtype=float)
-                half = np.nan_to_num(group[f"{metric}_ci"].to_numpy(dtype=float))
+                low, high = interval(group, metric)
                 colour = model_colour(models, model)
                 ax.plot(group["eta"], mean, color=colour, marker=MARKERS[k % len(MARKERS)],
                         ms=3, lw=1.2, label=model_label(models, model))  # fmt: skip
-                ax.fill_between(group["eta"], mean - half, mean + half, color=colour, alpha=0.18)
+                ax.fill_between(group["eta"], low, high, color=colour, alpha=0.18)
             ax.grid(True, lw=0.3, alpha=0.5)
             if j == 0:
                 ax.set_ylabel(ylabel)
@@ -77,7 +90,8 @@ def bars(
     order: Sequence[str] | None = None,
 ) -> plt.Figure:
     """Grouped bars, one panel per metric: per controller, one bar per model, the mean over the
-    η grid of the per-η means, with the root-mean-square of their 95 % CIs as error bar."""
+    η grid of the per-η means, with the root-mean-square of their 95 % CIs as error bar (kept
+    within the cells' bounded intervals, so that it never crosses a value no run can take)."""
     fig, axes = plt.subplots(
         len(metrics), 1, figsize=(max(7.0, 1.6 + 1.5 * len(controllers)), 3.0 * len(metrics)),
         squeeze=False,
@@ -106,19 +120,42 @@ def _bar_panel(
     model_names = list(order or sorted(set(summary["model"])))
     width = 0.8 / max(len(model_names), 1)
     for k, model in enumerate(model_names):
-        means, halves = [], []
+        means, below, above = [], [], []
         for controller in names:
-            runs = summary[(summary["controller"] == controller) & (summary["model"] == model)]
-            means.append(float(runs[f"{metric}_mean"].mean()) if len(runs) else np.nan)
-            halves.append(float(runs[f"{metric}_ci"].pow(2).mean() ** 0.5) if len(runs) else 0)
+            cells = summary[(summary["controller"] == controller) & (summary["model"] == model)]
+            if not len(cells) or cells[f"{metric}_mean"].isna().all():
+                means.append(np.nan), below.append(0.0), above.append(0.0)
+                continue
+            mean = float(cells[f"{metric}_mean"].mean())
+            half = float(np.nan_to_num(cells[f"{metric}_ci"].pow(2).mean() ** 0.5))
+            low, high = interval(cells, metric)
+            means.append(mean)
+            below.append(mean - max(mean - half, float(np.nanmin(low))))
+            above.append(min(mean + half, float(np.nanmax(high))) - mean)
         x = np.arange(len(names)) + (k - (len(model_names) - 1) / 2) * width
-        ax.bar(x, means, width, yerr=np.nan_to_num(halves), capsize=2,
+        ax.bar(x, means, width, yerr=np.nan_to_num([below, above]), capsize=2,
                color=model_colour(models, model), alpha=0.5 if model.endswith("-fixed") else 0.95,
                hatch="//" if model.endswith("-fixed") else None, edgecolor="black", lw=0.5,
                label=model_label(models, model))  # fmt: skip
     ax.set_xticks(np.arange(len(names)), [controllers[c] for c in names], fontsize=8)
     ax.set_ylabel(ylabel)
     ax.grid(True, axis="y", lw=0.3, alpha=0.5)
+
+
+def robust_limits(values: np.ndarray, tail: float = 0.005) -> tuple[float, float] | None:
+    """Axis limits that show the signals rather than the last samples of a run whose plant
+    diverged as it failed (ω of −100 rad/s would flatten every other trace): the range of the
+    central 99 % of the samples padded by a tenth of it, when the whole range is more than
+    twice that; None (Matplotlib's own limits) otherwise."""
+    finite = np.asarray(values, dtype=float)
+    finite = finite[np.isfinite(finite)]
+    if finite.size == 0:
+        return None
+    low, high = (float(q) for q in np.quantile(finite, [tail, 1.0 - tail]))
+    span = max(high - low, 1e-9)
+    if finite.max() - finite.min() <= 2.0 * span:
+        return None
+    return low - 0.1 * span, high + 0.1 * span
 
 
 def signals_grid(
@@ -145,7 +182,11 @@ def signals_grid(
                                 label=controllers[controller])  # fmt: skip
         axes[0, j].set_title(model_label(models, model))
         axes[-1, j].set_xlabel("time (s)")
-        for i, (_, ylabel) in enumerate(signals):
+        for i, (key, ylabel) in enumerate(signals):
+            values = [series[(model, c)][key] for c in controllers if (model, c) in series]
+            limits = robust_limits(np.concatenate(values)) if values else None
+            if limits is not None:
+                axes[i, j].set_ylim(*limits)
             axes[i, j].grid(True, lw=0.3, alpha=0.5)
             if j == 0:
                 axes[i, j].set_ylabel(ylabel)

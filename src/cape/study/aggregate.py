@@ -5,6 +5,13 @@ A run is identified by (study, plant, internal, controller, eta, seed); its fold
 ``timing.json``. Summaries group the seeds of one cell: the mean of a metric with its 95 %
 confidence interval (Student's t over the seeds), the success rate, and the failure-penalised
 means of SPEC §5.3 (a failed run counts with the penalty values).
+
+With five seeds and a cell that half laps and half fails, the t-interval of a penalised mean is
+wide enough to cross values no run can take (a negative lap time). Beside the half-width
+(``_ci``, what the tables print) the summary keeps that interval intersected with the range
+the metric's runs can take (``_lo``, ``_hi``, what the figures draw): every metric is
+non-negative, and a penalised lap time is at most the larger of the time limit and the
+penalty, since a lap that ends succeeds before the limit and a failure counts as the penalty.
 """
 
 from __future__ import annotations
@@ -82,10 +89,22 @@ def mean_ci(values: Sequence[float], level: float = 0.95) -> tuple[float, float,
     return float(x.mean()), float(half), int(x.size)
 
 
+def support(metric: str, group: pd.DataFrame) -> tuple[float, float]:
+    """The range the per-run values of ``metric`` can take in one cell (see the module's
+    docstring): [0, ∞), and for the penalised lap time [0, max(time limit, largest value)]
+    (the largest value is the penalty when a run failed)."""
+    if metric == "lap_time_penalised" and "time_limit" in group:
+        values = group[[metric, "time_limit"]].to_numpy(dtype=float)
+        if np.isfinite(values).any():
+            return 0.0, float(np.nanmax(values))
+    return 0.0, math.inf
+
+
 def summarise(runs: pd.DataFrame, by: Sequence[str] = CELL, level: float = 0.95) -> pd.DataFrame:
-    """Per cell: runs, successes, success rate, and for every metric its mean and CI half-width
-    (``<metric>_mean``, ``<metric>_ci``, over the runs where it exists: successful laps for the
-    plain lap time, every run for the penalised values)."""
+    """Per cell: runs, successes, success rate, and for every metric its mean, CI half-width
+    and the CI bounded by the metric's range (``<metric>_mean``, ``_ci``, ``_lo``, ``_hi``, over
+    the runs where it exists: successful laps for the plain lap time, every run for the
+    penalised values)."""
     rows = []
     for key, group in runs.groupby(list(by), sort=True, dropna=False):
         row = dict(zip(by, key if isinstance(key, tuple) else (key,), strict=True))
@@ -98,5 +117,9 @@ def summarise(runs: pd.DataFrame, by: Sequence[str] = CELL, level: float = 0.95)
             values = group[metric].to_numpy(dtype=float)
             mean, half, n = mean_ci(values, level)
             row[f"{metric}_mean"], row[f"{metric}_ci"], row[f"{metric}_n"] = mean, half, n
+            low, high = support(metric, group)
+            spread = 0.0 if math.isnan(half) else half
+            row[f"{metric}_lo"] = max(mean - spread, low) if n else math.nan
+            row[f"{metric}_hi"] = min(mean + spread, high) if n else math.nan
         rows.append(row)
     return pd.DataFrame(rows)
