@@ -158,6 +158,10 @@ def test_the_scorecard_recomputes_the_claims_per_seed() -> None:
     assert speed["ours_mean"].iloc[0] == pytest.approx(100.0) and speed["holds"].iloc[0] == "yes"
     fails = table[table["claim"].str.startswith("NMPC-family")].set_index("item")
     assert fails.loc["DPM", "ours_mean"] == 1 and fails.loc["EPM", "holds"] == "yes"
+    # one claim, one label: the grid's 2 NMPCs × 1 η, whichever runs a model has so far
+    incomplete = pd.DataFrame(rows).query("not (model == 'ddm' and controller == 'nmpc')")
+    labels = pd.DataFrame(learned_claims(incomplete))["claim"]
+    assert set(labels[labels.str.startswith("NMPC-family")]) == {"NMPC-family failures of 2 runs"}
 
     page = at_a_glance(table, pd.DataFrame(rows))
     assert page.startswith("# CAPE results at a glance")
