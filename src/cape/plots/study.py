@@ -75,11 +75,21 @@ def eta_sweep(
                 ax.set_title(controllers[controller])
             if i == len(metrics) - 1:
                 ax.set_xlabel("η (disturbance level)")
-    handles, labels = axes[0, 0].get_legend_handles_labels()
+    # every panel's models: PID's panel has only the plant, an NMPC's the internal models
+    handles, labels = legend_entries(axes.ravel())
     fig.legend(handles, labels, loc="lower center", ncol=len(labels), frameon=False,
                bbox_to_anchor=(0.5, -0.02))  # fmt: skip
     fig.tight_layout(rect=(0, 0.05, 1, 1))
     return fig
+
+
+def legend_entries(axes: Sequence[plt.Axes]) -> tuple[list, list[str]]:
+    """The distinct labelled artists of several panels, in order of first appearance."""
+    seen: dict[str, object] = {}
+    for ax in axes:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            seen.setdefault(label, handle)
+    return list(seen.values()), list(seen)
 
 
 def bars(
@@ -190,10 +200,8 @@ def signals_grid(
             axes[i, j].grid(True, lw=0.3, alpha=0.5)
             if j == 0:
                 axes[i, j].set_ylabel(ylabel)
-    seen: dict[str, object] = {}
-    for ax in axes[0]:  # a controller may be missing from a column (PID has no internal model)
-        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
-            seen.setdefault(label, handle)
+    # a controller may be missing from a column (PID has no internal model)
+    seen = dict(zip(*reversed(legend_entries(axes[0])), strict=True))
     order = [label for label in controllers.values() if label in seen]
     fig.legend([seen[k] for k in order], order, loc="lower center", ncol=len(seen),
                frameon=False, bbox_to_anchor=(0.5, 0.0))  # fmt: skip
