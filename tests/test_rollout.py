@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 from pathlib import Path
 
@@ -59,6 +60,25 @@ def test_pid_and_rise_lap_the_ground_truth_plant(config, setting, name: str) -> 
     assert np.all(np.abs(result.series["delta_cmd"]) <= 0.35 + 1e-12)
     assert np.all(np.abs(np.diff(result.series["delta_cmd"])) <= 0.1 + 1e-12)  # 5 rad/s
     assert result.series["T_cmd"].min() >= -0.1 and result.series["T_cmd"].max() <= 1.0
+
+
+def test_the_steering_delay_alone_takes_pid_off_the_track(config, setting) -> None:
+    """The study's finding (examples/disturbance_attribution.py): PID leaves the track at every
+    η > 0 because of the 20 ms steering delay, which does not scale with η. With every other
+    source switched off it still fails; with only the delay switched off it laps."""
+    sources = ("measurement_noise", "process_noise", "steering_delay", "imu_bias", "crosswind",
+               "mismatch")  # fmt: skip
+
+    def lap(active: set[str]) -> dict:
+        cfg = copy.deepcopy(config)
+        for source in sources:
+            if source not in active:
+                cfg["disturbances"][source]["active_from"] = float("inf")
+        pid = controller_class("pid")(cfg["controllers"]["pid"], setting[1], ACTUATOR_LIMITS, TS)
+        return _run(cfg, setting, pid, eta=0.5).metrics
+
+    assert lap({"steering_delay"})["failure"] == "off_track"
+    assert lap(set(sources) - {"steering_delay"})["success"]
 
 
 class _Constant(Controller):
