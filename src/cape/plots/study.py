@@ -134,7 +134,9 @@ def _bar_panel(
         for controller in names:
             cells = summary[(summary["controller"] == controller) & (summary["model"] == model)]
             if not len(cells) or cells[f"{metric}_mean"].isna().all():
-                means.append(np.nan), below.append(0.0), above.append(0.0)
+                means.append(np.nan)
+                below.append(0.0)
+                above.append(0.0)
                 continue
             mean = float(cells[f"{metric}_mean"].mean())
             half = float(np.nan_to_num(cells[f"{metric}_ci"].pow(2).mean() ** 0.5))
@@ -201,7 +203,8 @@ def signals_grid(
             if j == 0:
                 axes[i, j].set_ylabel(ylabel)
     # a controller may be missing from a column (PID has no internal model)
-    seen = dict(zip(*reversed(legend_entries(axes[0])), strict=True))
+    handles, labels = legend_entries(axes[0])
+    seen = dict(zip(labels, handles, strict=True))
     order = [label for label in controllers.values() if label in seen]
     fig.legend([seen[k] for k in order], order, loc="lower center", ncol=len(seen),
                frameon=False, bbox_to_anchor=(0.5, 0.0))  # fmt: skip
