@@ -179,3 +179,24 @@ def test_signal_axes_ignore_the_samples_of_a_diverging_plant() -> None:
     diverged = np.concatenate([lap, [-20.0, -60.0, -100.0]])  # the last steps of a failed run
     low, high = robust_limits(diverged)
     assert -7.0 < low < -5.0 and 5.0 < high < 7.0
+
+
+def test_bars_centre_the_models_a_controller_has_on_its_tick() -> None:
+    from cape.plots.study import bars
+
+    rows = [("truth", "pid", 0.0), ("truth", "nmpc", 0.0), ("epm", "nmpc", 0.0)]
+    summary = pd.DataFrame(
+        [{"model": m, "controller": c, "eta": e, "lap_time_penalised_mean": 10.0,
+          "lap_time_penalised_ci": 20.0, "lap_time_penalised_lo": 0.0,
+          "lap_time_penalised_hi": 15.0} for m, c, e in rows]
+    )  # fmt: skip
+    models = {"epm": {"label": "EPM", "color": "#2ca02c"}}
+    fig = bars(summary, [("lap_time_penalised", "s")], {"pid": "PID", "nmpc": "NMPC"}, models)
+    ax = fig.axes[0]
+    centres = sorted(round(p.get_x() + p.get_width() / 2, 6) for p in ax.patches)
+    width = ax.patches[0].get_width()
+    assert centres == [0.0, round(1 - width / 2, 6), round(1 + width / 2, 6)]
+    # the error bar of a 20 s half-width stays within 0–15 s
+    tops = [seg[:, 1].max() for line in ax.collections for seg in line.get_segments()]
+    assert max(tops) == pytest.approx(15.0)
+    assert [t.get_text() for t in fig.legends[0].get_texts()] == ["EPM", "true model"]

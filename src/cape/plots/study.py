@@ -109,7 +109,11 @@ def bars(
     for ax, (metric, ylabel) in zip(axes[:, 0], metrics, strict=True):
         _bar_panel(ax, summary, metric, ylabel, controllers, models, order)
     # one legend for every panel, above them, so that it never covers a panel's tick labels
-    handles, labels = axes[0, 0].get_legend_handles_labels()
+    handles, labels = legend_entries(axes[:, 0])
+    found = dict(zip(labels, handles, strict=True))
+    wanted = [model_label(models, m) for m in order or sorted(set(summary["model"]))]
+    labels = [label for label in wanted if label in found]  # the models' order, not the bars'
+    handles = [found[label] for label in labels]
     ncol = max(1, min(len(labels), int(fig.get_figwidth() // 2.6)))  # ≈2.6 in per entry
     fig.legend(handles, labels, fontsize=8, ncol=ncol, frameon=False, loc="upper center")
     rows = -(-max(len(labels), 1) // ncol)
@@ -129,29 +133,37 @@ def _bar_panel(
     names = [c for c in controllers if c in set(summary["controller"])]
     model_names = list(order or sorted(set(summary["model"])))
     width = 0.8 / max(len(model_names), 1)
-    for k, model in enumerate(model_names):
-        means, below, above = [], [], []
-        for controller in names:
-            cells = summary[(summary["controller"] == controller) & (summary["model"] == model)]
-            if not len(cells) or cells[f"{metric}_mean"].isna().all():
-                means.append(np.nan)
-                below.append(0.0)
-                above.append(0.0)
-                continue
-            mean = float(cells[f"{metric}_mean"].mean())
-            half = float(np.nan_to_num(cells[f"{metric}_ci"].pow(2).mean() ** 0.5))
-            low, high = interval(cells, metric)
-            means.append(mean)
-            below.append(mean - max(mean - half, float(np.nanmin(low))))
-            above.append(min(mean + half, float(np.nanmax(high))) - mean)
-        x = np.arange(len(names)) + (k - (len(model_names) - 1) / 2) * width
-        ax.bar(x, means, width, yerr=np.nan_to_num([below, above]), capsize=2,
-               color=model_colour(models, model), alpha=0.5 if model.endswith("-fixed") else 0.95,
-               hatch="//" if model.endswith("-fixed") else None, edgecolor="black", lw=0.5,
-               label=model_label(models, model))  # fmt: skip
+    labelled: set[str] = set()
+    for i, controller in enumerate(names):
+        # the models this controller has, centred on its tick (PID in the ground-truth study
+        # has only the true model: one bar on the tick, not the last of four slots)
+        bars = [b for b in (_bar(summary, controller, model, metric) for model in model_names) if b]
+        for k, (model, mean, below, above) in enumerate(bars):
+            label = "_nolegend_" if model in labelled else model_label(models, model)
+            ax.bar(i + (k - (len(bars) - 1) / 2) * width, mean, width, yerr=[[below], [above]],
+                   capsize=2, color=model_colour(models, model),
+                   alpha=0.5 if model.endswith("-fixed") else 0.95,
+                   hatch="//" if model.endswith("-fixed") else None, edgecolor="black", lw=0.5,
+                   label=label)  # fmt: skip
+            labelled.add(model)
     ax.set_xticks(np.arange(len(names)), [controllers[c] for c in names], fontsize=8)
     ax.set_ylabel(ylabel)
     ax.grid(True, axis="y", lw=0.3, alpha=0.5)
+
+
+def _bar(
+    summary: pd.DataFrame, controller: str, model: str, metric: str
+) -> tuple[str, float, float, float] | None:
+    """(model, mean over the η grid, error below, error above), or None without data."""
+    cells = summary[(summary["controller"] == controller) & (summary["model"] == model)]
+    if not len(cells) or cells[f"{metric}_mean"].isna().all():
+        return None
+    mean = float(cells[f"{metric}_mean"].mean())
+    half = float(np.nan_to_num(cells[f"{metric}_ci"].pow(2).mean() ** 0.5))
+    low, high = interval(cells, metric)
+    below = mean - max(mean - half, float(np.nanmin(low)))
+    above = min(mean + half, float(np.nanmax(high))) - mean
+    return model, mean, below, above
 
 
 def robust_limits(values: np.ndarray, tail: float = 0.005) -> tuple[float, float] | None:
