@@ -16,23 +16,15 @@ import argparse
 import copy
 from pathlib import Path
 
+from cape.closedloop.disturbances import SOURCES
 from cape.closedloop.setup import build_run
 from cape.config import load_config
-
-SOURCES = (
-    "measurement_noise",
-    "process_noise",
-    "steering_delay",
-    "imu_bias",
-    "crosswind",
-    "mismatch",
-)
 
 
 def outcome(config: dict, plant: str, controller: str, eta: float, seed: int) -> str:
     """'lap' or the step at which the run failed."""
-    metrics = build_run(config, plant, controller, eta, seed, None, Path("results/models"), None)()
-    return "lap" if metrics.metrics["success"] else f"step {metrics.metrics['steps']}"
+    result = build_run(config, plant, controller, eta, seed, None, Path("results/models"), None)()
+    return "lap" if result.metrics["success"] else f"step {result.metrics['steps']}"
 
 
 def without(config: dict, sources: list[str]) -> dict:

@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from cape.cli import main
-from cape.closedloop.disturbances import DisturbancePipeline
+from cape.closedloop.disturbances import SOURCES, DisturbancePipeline
 from cape.closedloop.plants import TruthPlant
 from cape.closedloop.reference import ReferenceLine
 from cape.closedloop.rollout import initial_state, run_lap
@@ -66,19 +66,17 @@ def test_the_steering_delay_alone_takes_pid_off_the_track(config, setting) -> No
     """The study's finding (examples/disturbance_attribution.py): PID leaves the track at every
     η > 0 because of the 20 ms steering delay, which does not scale with η. With every other
     source switched off it still fails; with only the delay switched off it laps."""
-    sources = ("measurement_noise", "process_noise", "steering_delay", "imu_bias", "crosswind",
-               "mismatch")  # fmt: skip
 
     def lap(active: set[str]) -> dict:
         cfg = copy.deepcopy(config)
-        for source in sources:
+        for source in SOURCES:
             if source not in active:
                 cfg["disturbances"][source]["active_from"] = float("inf")
         pid = controller_class("pid")(cfg["controllers"]["pid"], setting[1], ACTUATOR_LIMITS, TS)
         return _run(cfg, setting, pid, eta=0.5).metrics
 
     assert lap({"steering_delay"})["failure"] == "off_track"
-    assert lap(set(sources) - {"steering_delay"})["success"]
+    assert lap(set(SOURCES) - {"steering_delay"})["success"]
 
 
 class _Constant(Controller):

@@ -25,6 +25,9 @@ from typing import Any
 import numpy as np
 
 VELOCITIES = slice(3, 6)
+SOURCES = ("measurement_noise", "process_noise", "steering_delay", "imu_bias", "crosswind",
+           "mismatch")  # fmt: skip
+"""The sources' keys in the config's ``disturbances`` section."""
 
 
 @dataclass
