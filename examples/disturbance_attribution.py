@@ -3,11 +3,11 @@ off in turn (and with only the steering delay left), on one plant at one η, ove
 
 Several sources do not scale with η (the 20 ms steering delay, the IMU bias walk, the crosswind,
 the parameter mismatch): they are at full strength from the first η > 0. This script is how the
-study's finding that PID and RISE leave the track at every η > 0 was traced to the steering
-delay. It uses the same run builder as `cape rollout`; a source is switched off through its
+finding that the printed PID and RISE (`pid_paper`, `rise_paper`) leave the track at every
+η > 0 was traced to the steering delay. It uses the same run builder as `cape rollout`; a source is switched off through its
 `active_from` key, as a user would in the config.
 
-    python examples/disturbance_attribution.py --controller pid --eta 0.5 --seeds 5
+    python examples/disturbance_attribution.py --controller pid_paper --eta 0.5 --seeds 5
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ def without(config: dict, sources: list[str]) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--controller", default="pid")
+    parser.add_argument("--controller", default="pid_paper")
     parser.add_argument("--plant", default="truth")
     parser.add_argument("--eta", type=float, default=0.5)
     parser.add_argument("--seeds", type=int, default=5)

@@ -30,6 +30,31 @@ def test_measurement_noise_has_the_stated_relative_sigma(config) -> None:
     assert np.all(np.abs(draws.mean(axis=0) - X) < 4 * expected / np.sqrt(20000))  # unbiased
 
 
+def test_heading_noise_does_not_grow_with_the_number_of_turns() -> None:
+    """SPEC §6: the heading's noise is scaled by the wrapped heading, so it is the same at ψ and
+    ψ − 2π (one more turn), and small near ψ = 2π; unwrapped (``wrap_heading: False``) it grows."""
+    noise = MeasurementNoise(sigma=0.05, floor=np.full(6, 1e-4))
+    unwrapped = MeasurementNoise(sigma=0.05, floor=np.full(6, 1e-4), wrap_heading=False)
+
+    def heading_std(source: MeasurementNoise, psi: float) -> float:
+        rng = np.random.default_rng(4)
+        y = X.copy()
+        y[2] = psi
+        return float(np.std([source.apply(y, rng)[2] - psi for _ in range(20000)]))
+
+    psi = 0.8
+    once, twice = heading_std(noise, psi), heading_std(noise, psi - 2 * np.pi)
+    assert once == pytest.approx(0.05 * 0.8 + 1e-4, rel=0.03)
+    assert twice == pytest.approx(once, rel=1e-9)  # the same draws, the same scale
+    assert heading_std(noise, 2 * np.pi - 0.01) == pytest.approx(0.05 * 0.01 + 1e-4, rel=0.03)
+    # the unwrapped scale counts turns: |0.8 − 2π| / 0.8 ≈ 6.9× larger one turn later
+    assert heading_std(unwrapped, psi - 2 * np.pi) > 6 * once
+    # the noise is added to the car's own unwrapped heading
+    y = X.copy()
+    y[2] = psi - 4 * np.pi
+    assert abs(noise.apply(y, np.random.default_rng(0))[2] - y[2]) < 0.5
+
+
 def test_process_noise_touches_only_the_velocities_with_2_eta_percent() -> None:
     noise = ProcessNoise(sigma=2 * 1.5 / 100, floor=1e-4)
     rng = np.random.default_rng(0)

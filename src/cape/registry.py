@@ -44,7 +44,10 @@ class Registry(Generic[T]):
         return decorate
 
     def get(self, name: str, spec: Mapping[str, Any] | None = None) -> T:
-        """The class registered as ``name``, importing ``spec['module']`` (or the built-in)."""
+        """The class of config entry ``name``: the class registered as ``spec['type']`` (an
+        entry that reuses another's class under new settings, e.g. ``pid_paper``) or else as
+        ``name``, importing ``spec['module']`` (or the built-in module) the first time."""
+        name = str((spec or {}).get("type") or name)
         if name not in self._classes:
             module = (spec or {}).get("module") or self.builtin_modules.get(name)
             if module is None:

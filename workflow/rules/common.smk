@@ -195,6 +195,7 @@ def study_targets():
     if "learned" in studies:  # the paper's claims are about the learned study
         targets += ["results/tables/table08_scorecard.md", "results/notebooks/scorecard.html"]
     targets += [f"results/notebooks/closed_loop_{study}.html" for study in CLOSED_LOOP_STUDIES]
+    targets += [f"results/notebooks/failures_{study}.html" for study in studies]
     return targets
 
 

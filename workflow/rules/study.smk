@@ -142,6 +142,35 @@ rule notebook_ablation:
         " && jupyter nbconvert --to html {output.notebook} --output-dir results/notebooks >> {log} 2>&1"
 
 
+rule notebook_failures:
+    """Figure 12 of one study: where its failed runs left the lap, on the track map."""
+    input:
+        notebook=f"{NOTEBOOKS}/failures.ipynb",
+        runs="results/study/runs.parquet",
+        raceline=raceline_path(),
+    output:
+        report(
+            "results/figures/{study}/fig12_failure_locations.png",
+            caption="../report/failures.rst",
+            category="{study} study",
+        ),
+        "results/figures/{study}/fig12_failure_locations.pdf",
+        notebook="results/notebooks/failures_{study}.ipynb",
+        html="results/notebooks/failures_{study}.html",
+    params:
+        cfg=lambda wildcards: config_json("tracks", "data", "reference", "controllers", "models", "study"),
+    conda:
+        CAPE_ENV
+    log:
+        "results/logs/notebooks/failures_{study}.log",
+    localrule: True
+    shell:
+        "papermill {input.notebook} {output.notebook} --cwd . --no-progress-bar"
+        " -r study {wildcards.study} -r config_json {params.cfg:q}"
+        " -r figure_dir results/figures/{wildcards.study} > {log} 2>&1"
+        " && jupyter nbconvert --to html {output.notebook} --output-dir results/notebooks >> {log} 2>&1"
+
+
 rule notebook_scorecard:
     """Table 8: the paper's headline claims beside ours."""
     input:

@@ -2,7 +2,8 @@
 
 Six sources, each a small object with one job, composed by ``DisturbancePipeline``:
 
-- measurement noise  z = y + N(0, (σ·|y| + ε)²) per state, σ = η·``sigma_per_eta``
+- measurement noise  z = y + N(0, (σ·|y| + ε)²) per state, σ = η·``sigma_per_eta``, the
+                     heading's |y| taken on the heading wrapped to (−π, π]
 - process noise      [vx, vy, ω] += N(0, (2η/100·|·| + ε)²) after each plant step
 - steering delay     the steering command reaches the plant ``steps`` samples late (FIFO)
 - IMU bias drift     random walks added to the measured ψ and ω
@@ -24,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from cape.tracks.geometry import wrap_angle
+
 VELOCITIES = slice(3, 6)
 SOURCES = ("measurement_noise", "process_noise", "steering_delay", "imu_bias", "crosswind",
            "mismatch")  # fmt: skip
@@ -32,13 +35,23 @@ SOURCES = ("measurement_noise", "process_noise", "steering_delay", "imu_bias", "
 
 @dataclass
 class MeasurementNoise:
-    """Relative Gaussian noise on every measured state, with an absolute floor."""
+    """Relative Gaussian noise on every measured state, with an absolute floor.
+
+    The heading's noise is scaled by the heading wrapped to (−π, π] (``wrap_heading``, SPEC §6):
+    a heading sensor reports an angle, not a count of turns, and the unwrapped ψ of a lap grows
+    to −6.7 rad, which would make the noise ~15× larger at the end of the lap than at its start.
+    The noise is added to the car's own (unwrapped) ψ. Positions keep the paper's σ·|X|, σ·|Y|,
+    which depend on where the track's origin lies (docs/closed-loop.md)."""
 
     sigma: float
     floor: np.ndarray
+    wrap_heading: bool = True
 
     def apply(self, y: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        return y + rng.standard_normal(y.size) * (self.sigma * np.abs(y) + self.floor)
+        size = np.abs(y)
+        if self.wrap_heading:
+            size[2] = abs(wrap_angle(float(y[2])))
+        return y + rng.standard_normal(y.size) * (self.sigma * size + self.floor)
 
 
 @dataclass
@@ -150,7 +163,9 @@ class DisturbancePipeline:
         pipe = cls(eta=eta, rng=np.random.default_rng(seed))
         if cfg := active("measurement_noise"):
             pipe.noise = MeasurementNoise(
-                eta * cfg["sigma_per_eta"], np.asarray(cfg["floor"], dtype=float)
+                eta * cfg["sigma_per_eta"],
+                np.asarray(cfg["floor"], dtype=float),
+                bool(cfg.get("wrap_heading", True)),
             )
         if cfg := active("process_noise"):
             pipe.process = ProcessNoise(eta * cfg["sigma_per_eta"], float(cfg["floor"]))

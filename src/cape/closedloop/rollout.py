@@ -18,7 +18,8 @@ import numpy as np
 from cape.closedloop.disturbances import DisturbancePipeline
 from cape.closedloop.plants import Plant
 from cape.closedloop.reference import ProgressTracker, ReferenceLine
-from cape.controllers.base import Controller, cross_track_error, wrap_angle
+from cape.controllers.base import Controller
+from cape.tracks.geometry import cross_track_error, wrap_angle
 from cape.tracks.track import Track
 
 FAILURES = ("off_track", "timeout", "diverged")
@@ -50,8 +51,10 @@ def run_lap(
     time_limit: float,
     vx0: float,
     penalty: dict[str, float],
+    failure_window: float = 0.5,
 ) -> RolloutResult:
-    """Drive one lap; never raises for a failed run (the failure and its reason are recorded)."""
+    """Drive one lap; never raises for a failed run (the failure, its reason and where it
+    happened are recorded: see ``failure_location``)."""
     ts = line.ts
     max_steps = round(time_limit / ts)
     x = initial_state(line, vx0)
@@ -68,7 +71,8 @@ def run_lap(
     failure: str | None = None
     lap_time: float | None = None
     steps = 0
-    fallbacks = 0
+    fallback_steps: list[bool] = []
+    last_pose = x[:2].copy()
     centre_s = track.center.project(x[0], x[1]).s
     for k in range(max_steps):
         ref = line.points(proj_seen.s, horizon)
@@ -79,7 +83,7 @@ def run_lap(
             failure = "diverged"
             break
         solve_ms.append((time.perf_counter() - start) * 1e3)
-        fallbacks += bool(info.get("fallback", False))
+        fallback_steps.append(bool(info.get("fallback", False)))
         if not np.all(np.isfinite(u_cmd)):
             failure = "diverged"
             break
@@ -89,6 +93,7 @@ def run_lap(
         if not np.all(np.isfinite(x)):
             failure = "diverged"
             break
+        last_pose = x[:2].copy()
         proj_car = car.update(x[0], x[1])
         # tracking errors against the reference point issued for this step (k = 1)
         x_ref, y_ref, psi_ref = float(ref.x[1]), float(ref.y[1]), float(ref.heading[1])
@@ -114,8 +119,36 @@ def run_lap(
         failure = "timeout"
     series = {key: np.asarray(values, dtype=float) for key, values in rows.items()}
     metrics = summarise(series, failure, lap_time, steps, time_limit, penalty)
-    metrics["fallbacks"] = fallbacks  # steps whose solve failed (model-based controllers)
+    metrics["fallbacks"] = sum(fallback_steps)  # steps whose solve failed (model-based)
+    window = max(round(failure_window / ts), 0)
+    metrics.update(
+        failure_location(failure, car.total, line.length, last_pose, fallback_steps, window)
+    )
     return RolloutResult(metrics=metrics, series=series, solve_ms=np.asarray(solve_ms))
+
+
+def failure_location(
+    failure: str | None,
+    progress: float,
+    length: float,
+    pose: np.ndarray,
+    fallback_steps: list[bool],
+    window: int,
+) -> dict[str, Any]:
+    """Where a failed run was lost: its progress along the reference (m and fraction of the
+    lap), the car's last finite position, and the solver fallbacks in the ``window`` steps
+    before (a failing solver, not the car, may be the cause). All None for a lap."""
+    if failure is None:
+        return {"failure_s": None, "failure_fraction": None, "failure_X": None,
+                "failure_Y": None, "fallbacks_before_failure": None}  # fmt: skip
+    recent = fallback_steps[-window:] if window else []
+    return {
+        "failure_s": float(progress),
+        "failure_fraction": float(progress / length),
+        "failure_X": float(pose[0]),
+        "failure_Y": float(pose[1]),
+        "fallbacks_before_failure": int(sum(recent)),
+    }
 
 
 SERIES_KEYS = (

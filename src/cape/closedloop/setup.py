@@ -115,6 +115,7 @@ class Run:
             time_limit=float(s["time_limit"]),
             vx0=float(s["vx0"]),
             penalty=s["penalty"],
+            failure_window=float(s.get("failure_window", 0.5)),
         )
 
 
@@ -168,6 +169,7 @@ def build_run(
         ts,
         track=track,
         internal=internal_model,
+        name=controller_name,
         **extra,
     )
     return Run(

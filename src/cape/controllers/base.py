@@ -18,14 +18,17 @@ from cape.tracks.geometry import Projection
 from cape.vehicle.params import ActuatorLimits
 
 
-def wrap_angle(a: float) -> float:
-    """Angle folded into [−π, π)."""
-    return (a + math.pi) % (2 * math.pi) - math.pi
-
-
-def cross_track_error(x: float, y: float, x_ref: float, y_ref: float, psi_ref: float) -> float:
-    """The paper's e_cte: positive when the car is left of the line (SPEC §5.3)."""
-    return (y - y_ref) * math.cos(psi_ref) - (x - x_ref) * math.sin(psi_ref)
+def preview_pose(z: np.ndarray, t_p: float) -> tuple[float, float, float]:
+    """The measured pose predicted ``t_p`` seconds ahead with the measured body velocities held
+    (SPEC §7.1, latency compensation): ψ advances by ω·t_p and the position by the body velocity
+    rotated to the mid-interval heading. ``t_p = 0`` returns the measured pose itself."""
+    x, y, psi = float(z[0]), float(z[1]), float(z[2])
+    if t_p == 0.0:
+        return x, y, psi
+    vx, vy, omega = float(z[3]), float(z[4]), float(z[5])
+    mid = psi + 0.5 * omega * t_p
+    c, s = math.cos(mid), math.sin(mid)
+    return x + t_p * (vx * c - vy * s), y + t_p * (vx * s + vy * c), psi + omega * t_p
 
 
 @dataclass
@@ -90,7 +93,10 @@ class Controller:
         ts: float,
         track: Any = None,
         internal: Any = None,
+        name: str | None = None,
     ) -> None:
+        if name is not None:
+            self.name = name  # the config entry's name (several entries may share one class)
         self.settings = settings
         self.line = line
         self.limits = limits

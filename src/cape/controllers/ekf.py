@@ -19,7 +19,7 @@ import casadi as ca
 import numpy as np
 
 from cape.closedloop.internal import InternalModel
-from cape.controllers.base import wrap_angle
+from cape.tracks.geometry import wrap_angle
 
 N_EKF = 6
 

@@ -1,8 +1,14 @@
 """PID (SPEC §7.1): δ = PID_ψ(e_ψ) + PID_cte(−e_cte), T = PID_v(e_vx).
 
-Heading and cross-track errors are taken at a look-ahead point just ahead of the projection
-(configurable; SPEC default 0.05 m). e_cte is the paper's (positive left of the line), so it
-enters negated: a car left of the line steers right.
+Heading and cross-track errors are taken at a look-ahead point ahead of the projection:
+``lookahead: {time: t_L}`` puts it ``t_L·vx`` ahead (the default, 0.05 s), ``{distance: L}`` a
+fixed ``L`` metres ahead (the paper-literal 0.05 m). e_cte is the paper's (positive left of the
+line), so it enters negated: a car left of the line steers right.
+
+Latency compensation: the errors are computed from the measured pose predicted ``preview``
+seconds ahead (``preview_pose``), because the one-step steering delay of SPEC §6 meets a yaw
+response fast enough (17–31 rad/s per rad) to make the uncompensated law a ±0.35 rad limit
+cycle. ``preview: 0`` with a fixed look-ahead is the law as printed (the ``pid_paper`` entry).
 """
 
 from __future__ import annotations
@@ -10,13 +16,23 @@ from __future__ import annotations
 import numpy as np
 
 from cape.closedloop.reference import ReferencePoints
-from cape.controllers.base import Controller, PIDLoop, cross_track_error, wrap_angle
+from cape.controllers.base import Controller, PIDLoop, preview_pose, require
 from cape.controllers.registry import register_controller
-from cape.tracks.geometry import Projection
+from cape.tracks.geometry import Projection, cross_track_error, wrap_angle
+
+SETTINGS = ("speed", "heading", "cross_track", "lookahead", "preview")
 
 
 @register_controller("pid")
 class PIDController(Controller):
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        require(self.settings, SETTINGS, f"controllers.{self.name}")
+        self.preview = float(self.settings["preview"])
+        ahead = self.settings["lookahead"]
+        self.lookahead_time = float(ahead.get("time", 0.0))
+        self.lookahead_distance = float(ahead.get("distance", 0.0))
+
     def reset(self, z0: np.ndarray) -> None:
         super().reset(z0)
         s = self.settings
@@ -25,11 +41,15 @@ class PIDController(Controller):
         self.cross = PIDLoop.from_config(s["cross_track"], self.ts)
 
     def command(self, z: np.ndarray, proj: Projection, ref: ReferencePoints) -> np.ndarray:
-        s_ahead = proj.s + float(self.settings["lookahead"])
+        x, y, psi = preview_pose(z, self.preview)
+        if self.preview:
+            proj = self.line.project(x, y, proj.s)
+        ahead = self.lookahead_distance + self.lookahead_time * max(float(z[3]), 0.0)
+        s_ahead = proj.s + ahead
         x_ref, y_ref = self.line.path.position(s_ahead)
         psi_ref = float(self.line.path.heading(s_ahead))
-        e_cte = cross_track_error(z[0], z[1], float(x_ref), float(y_ref), psi_ref)
-        e_psi = wrap_angle(psi_ref - z[2])
+        e_cte = cross_track_error(x, y, float(x_ref), float(y_ref), psi_ref)
+        e_psi = wrap_angle(psi_ref - psi)
         e_vx = float(ref.speed[0]) - z[3]
         steer = self.heading.step(e_psi) + self.cross.step(-e_cte)
         return np.array([self.speed.step(e_vx), steer])

@@ -10,6 +10,11 @@ gains where they have a place:
     δ = −[(k_s + 1)·(e2 − e2(0)) + ∫((k_s + 1)·α·e2 + β·sgn(e2)) dt],  sgn(x) ≈ tanh(x / w),
 with |∫β·sgn(e2) dt| ≤ k_u (anti-windup for the robust term), and throttle from the PID speed
 loop with its proportional gain set to k_v.
+
+Latency compensation (SPEC §7.1–7.2): e1 and ė1 come from the measured pose predicted
+``preview`` seconds ahead, and the steering is scaled by min(1, v0/vx) with
+``v0 = speed_schedule`` (the yaw gain grows with speed). ``preview: 0`` and
+``speed_schedule: null`` give the law as printed (the ``rise_paper`` entry).
 """
 
 from __future__ import annotations
@@ -19,13 +24,25 @@ import math
 import numpy as np
 
 from cape.closedloop.reference import ReferencePoints
-from cape.controllers.base import Controller, PIDLoop, cross_track_error
+from cape.controllers.base import Controller, PIDLoop, preview_pose, require
 from cape.controllers.registry import register_controller
-from cape.tracks.geometry import Projection
+from cape.tracks.geometry import Projection, cross_track_error
+
+SETTINGS = ("ks", "alpha", "beta", "ku", "sign_width", "kv", "speed", "preview", "speed_schedule")
 
 
 @register_controller("rise")
 class RISEController(Controller):
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        require(self.settings, SETTINGS, f"controllers.{self.name}")
+        s = self.settings
+        self.ks, self.alpha = float(s["ks"]), float(s["alpha"])
+        self.beta, self.ku = float(s["beta"]), float(s["ku"])
+        self.sign_width = float(s["sign_width"])
+        self.preview = float(s["preview"])
+        self.v0 = None if s["speed_schedule"] is None else float(s["speed_schedule"])
+
     def reset(self, z0: np.ndarray) -> None:
         super().reset(z0)
         s = self.settings
@@ -35,19 +52,27 @@ class RISEController(Controller):
         self.sign_integral = 0.0
 
     def command(self, z: np.ndarray, proj: Projection, ref: ReferencePoints) -> np.ndarray:
-        s = self.settings
-        ks, alpha, beta, ku = float(s["ks"]), float(s["alpha"]), float(s["beta"]), float(s["ku"])
+        ks, alpha = self.ks, self.alpha
+        x, y, psi = preview_pose(z, self.preview)
+        if self.preview:
+            proj = self.line.project(x, y, proj.s)
         psi_ref = float(self.line.path.heading(proj.s))
-        e1 = cross_track_error(z[0], z[1], proj.x, proj.y, psi_ref)
-        d_psi = z[2] - psi_ref
+        e1 = cross_track_error(x, y, proj.x, proj.y, psi_ref)
+        d_psi = psi - psi_ref
         e1_dot = z[3] * math.sin(d_psi) + z[4] * math.cos(d_psi)
         e2 = e1_dot + alpha * e1
         if self.e2_initial is None:
             self.e2_initial = e2
         self.integral += (ks + 1) * alpha * e2 * self.ts
         self.sign_integral = min(
-            max(self.sign_integral + beta * math.tanh(e2 / s["sign_width"]) * self.ts, -ku), ku
+            max(
+                self.sign_integral + self.beta * math.tanh(e2 / self.sign_width) * self.ts,
+                -self.ku,
+            ),
+            self.ku,
         )
         steer = -((ks + 1) * (e2 - self.e2_initial) + self.integral + self.sign_integral)
+        if self.v0 is not None and z[3] > self.v0:
+            steer *= self.v0 / float(z[3])
         throttle = self.speed.step(float(ref.speed[0]) - z[3])
         return np.array([throttle, steer])

@@ -33,6 +33,13 @@ def predict_phi(model: LearnedModel, features: np.ndarray) -> np.ndarray:
         return model.phi(torch.as_tensor(features, dtype=torch.float64)).numpy()
 
 
+def rear_slip(data: dict[str, np.ndarray]) -> np.ndarray:
+    """|α_r| along a data set's training trajectory (``dstates``), with the true lr (SPEC §1):
+    how far into the rear tyre's curve the data reach, which bounds what a model can learn."""
+    vx, vy, omega = data["dstates"][3:6]
+    return np.abs(np.arctan2(GROUND_TRUTH.lr * omega - vy, np.abs(vx)))
+
+
 def one_step_rmse(model: LearnedModel, windows: WindowSet) -> dict[str, float]:
     """Root-mean-square one-step error of vx, vy, ω."""
     err = predict(model, windows.features) - windows.labels

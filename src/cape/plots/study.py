@@ -9,8 +9,10 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from cape.closedloop.rollout import FAILURES
 from cape.plots.style import plt
 from cape.plots.tracks import closed, draw_track
+from cape.tracks.geometry import ClosedPath
 from cape.tracks.track import Track
 
 CONTROLLER_STYLES = ("-", "--", "-.", ":", (0, (5, 1, 1, 1)))
@@ -256,6 +258,74 @@ def trajectories(
         ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=3,
                   frameon=False)  # fmt: skip
     fig.tight_layout()
+    return fig
+
+
+FAILURE_MARKERS = dict(zip(FAILURES, ("o", "s", "X"), strict=True))
+
+
+def failure_map(
+    track: Track,
+    path: ClosedPath,
+    runs: pd.DataFrame,
+    controllers: Mapping[str, str],
+    models: Mapping[str, Mapping],
+) -> plt.Figure:
+    """Where laps are lost: one column per model, the failed runs' last positions on the track
+    (colour: controller, marker: failure reason; every η and seed), and below each map the
+    failures' lap fraction, stacked by controller. ``path`` is the reference line; ticks along it
+    mark every tenth of the lap so that the map and the histogram read together."""
+    names = list(dict.fromkeys(runs["model"]))
+    _, colours = controller_looks(list(controllers))
+    fig, axes = plt.subplots(
+        2, max(len(names), 1), figsize=(4.6 * max(len(names), 1), 7.4),
+        gridspec_kw={"height_ratios": [3.2, 1.0]}, squeeze=False,
+    )  # fmt: skip
+    x, y = path.x, path.y
+    ticks = [int(np.searchsorted(path.s_points, f / 10 * path.length)) % len(x) for f in range(10)]
+    bins = np.linspace(0.0, 1.0, 21)
+    for j, model in enumerate(names):
+        top, bottom = axes[0, j], axes[1, j]
+        mine = runs[runs["model"] == model]
+        failed = mine[~mine["success"].astype(bool)]
+        draw_track(top, track, centre=False)
+        top.plot(closed(x), closed(y), color="0.7", lw=0.7, ls=":")
+        for k, i in enumerate(ticks):
+            top.annotate(f"{k / 10:.1f}", (x[i], y[i]), fontsize=6, color="0.4",
+                         ha="center", va="center")  # fmt: skip
+        top.plot(x[0], y[0], marker=">", color="black", ms=7)
+        stacks, stack_colours, stack_labels = [], [], []
+        for controller, label in controllers.items():
+            mine_c = failed[failed["controller"] == controller]
+            if mine_c.empty:
+                continue
+            for reason, marker in FAILURE_MARKERS.items():
+                pts = mine_c[mine_c["failure"] == reason]
+                if not pts.empty:
+                    top.scatter(
+                        pts["failure_X"], pts["failure_Y"], s=16, marker=marker,
+                        color=colours[controller], alpha=0.7, edgecolors="none",
+                    )  # fmt: skip
+            stacks.append(mine_c["failure_fraction"].to_numpy(dtype=float))
+            stack_colours.append(colours[controller])
+            stack_labels.append(label)
+        top.set_title(f"{model_label(models, model)}: {len(failed)} of {len(mine)} runs failed",
+                      fontsize=9)  # fmt: skip
+        if stacks:
+            bottom.hist(stacks, bins=bins, stacked=True, color=stack_colours, label=stack_labels)
+        else:
+            bottom.text(0.5, 0.5, "no failures", ha="center", va="center",
+                        transform=bottom.transAxes)  # fmt: skip
+        bottom.set_xlim(0, 1)
+        bottom.set_xlabel("lap fraction at failure")
+        bottom.set_ylabel("failed runs")
+    handles = [plt.Line2D([], [], color=colours[c], marker="o", ls="", label=label)
+               for c, label in controllers.items()]  # fmt: skip
+    handles += [plt.Line2D([], [], color="0.3", marker=m, ls="", label=reason.replace("_", " "))
+                for reason, m in FAILURE_MARKERS.items()]  # fmt: skip
+    fig.legend(handles=handles, loc="lower center", ncol=len(handles), frameon=False,
+               fontsize=8, bbox_to_anchor=(0.5, 0.0))  # fmt: skip
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
     return fig
 
 

@@ -8,7 +8,9 @@ from typing import Any
 
 import pandas as pd
 
-PRESENTATION = ("module", "label", "color")
+from cape.closedloop.rollout import FAILURES as FAILURE_REASONS
+
+PRESENTATION = ("module", "type", "label", "color")
 
 
 def _flatten(entry: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
@@ -135,3 +137,26 @@ def success_grid(summary: pd.DataFrame, labels: Mapping[str, str]) -> pd.DataFra
     grid = grid[order]
     grid.columns = [f"η={c}" for c in order]
     return grid.reset_index()
+
+
+def failure_summary(runs: pd.DataFrame, labels: Mapping[str, str]) -> pd.DataFrame:
+    """Per model and controller: runs, failures by reason, the median lap fraction where runs
+    failed, and the failures preceded by solver fallbacks (``fallbacks_before_failure`` > 0)."""
+    rows = []
+    for (model, controller), group in runs.groupby(["model", "controller"], sort=True):
+        failed = group[~group["success"].astype(bool)]
+        reasons = failed["failure"].value_counts()
+        fraction = failed["failure_fraction"].astype(float) if len(failed) else None
+        before = failed.get("fallbacks_before_failure")
+        rows.append(
+            {
+                "model": model,
+                "controller": labels.get(controller, controller),
+                "runs": len(group),
+                "failures": len(failed),
+                **{reason: int(reasons.get(reason, 0)) for reason in FAILURE_REASONS},
+                "median lap fraction": float(fraction.median()) if fraction is not None else None,
+                "after fallbacks": int((before.fillna(0) > 0).sum()) if before is not None else 0,
+            }
+        )
+    return pd.DataFrame(rows)

@@ -8,9 +8,20 @@ smooth where a controller needs derivatives.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+
+
+def wrap_angle(a: float) -> float:
+    """Angle folded into [−π, π)."""
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+def cross_track_error(x: float, y: float, x_ref: float, y_ref: float, psi_ref: float) -> float:
+    """The paper's e_cte: positive when the car is left of the line (SPEC §5.3)."""
+    return (y - y_ref) * math.cos(psi_ref) - (x - x_ref) * math.sin(psi_ref)
 
 
 @dataclass(frozen=True)
