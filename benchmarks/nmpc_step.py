@@ -1,23 +1,26 @@
-"""NMPC solve time per step: rebuilt-every-step IPOPT, IPOPT built once, and CAPE's default.
+"""NMPC solve time, iterations and failures per step: the default solver against IPOPT and the
+old default, on the same recorded problems.
 
-Drives one closed-loop lap of ETHZMobil (ground-truth plant, η = 0) with the nominal NMPC and
-records every problem it solved (initial state, parameters, throttle bounds). Then, in the same
-process, solves those same problems with
+Drives closed-loop laps of ETHZMobil (ground-truth plant, seed 0) with the nominal NMPC and the
+default solver, at η = 0 and η = 4, for each internal model asked for, and records every problem
+solved (initial state, parameters, throttle bounds). Then, in one process, replays those problems
+in order, each solver warm-started from its own previous solution as in a run:
 
-  (a) the pattern of the public reference implementations: the NLP and an IPOPT instance built
-      anew for every step and solved from a cold start (on every ``--stride``-th problem only;
-      it is slow);
-  (b) IPOPT built once per run, warm-started from the previous solution;
-  (c) the default solver of the config (SQP + qrqp on compiled NLP functions), warm-started;
+  default   the config's solver (the condensed SQP; with its IPOPT rescue), replayed ``--repeats``
+            times because this machine's speed drifts by tens of per cent between minutes
+  (a)       the NLP and IPOPT rebuilt every step, cold (every ``--stride``-th problem only)
+  (b)       IPOPT built once, warm-started (the project's IPOPT settings)
+  (c)       the old default: CasADi's sqpmethod, exact Hessian, qrqp, on the multiple-shooting NLP
+  reference IPOPT at tolerance 1e-8 (1000 iterations), for the first-input agreement
 
-and prints the median and p90 time per solve of each, the ratios a/c and b/c, and the largest
-first-input difference between (b) and (c). (c) replays the lap ``--repeats`` times, because
-this machine's speed drifts by tens of per cent from minute to minute: it reports the median
-over every solve of every replay and the range of the replays' medians.
+and prints, per lap and solver: median, p90, p99 and max time per solve (ms), iterations (median,
+max), failed solves, and the largest first-input difference against the reference, with the
+share of problems within 1e-3 and where in the lap the others are.
 
-    python benchmarks/nmpc_step.py [--internal epm] [--stride 10] [--repeats 5] [--json PATH]
+    python benchmarks/nmpc_step.py [--internal epm truth] [--eta 0 4] [--stride 10]
+                                    [--repeats 3] [--json PATH]
 
-The internal model is a trained model from results/models/ (or ``truth``, which needs none).
+The internal models are trained models from results/models/ (or ``truth``, which needs none).
 """
 
 from __future__ import annotations
@@ -34,119 +37,174 @@ import numpy as np
 
 from cape.closedloop.setup import build_run
 from cape.config import load_config
-from cape.controllers.nmpc import NominalNMPC
 
-Problem = tuple[np.ndarray, np.ndarray, tuple[float, float], np.ndarray]
+Problem = tuple[np.ndarray, np.ndarray, tuple[float, float]]
 
 
-def record_lap(config: dict[str, Any], internal: str, models: Path) -> list[Problem]:
-    run = build_run(config, "truth", "nmpc", 0.0, 0, internal, models)
+def record_lap(config: dict[str, Any], internal: str, eta: float, models: Path) -> list[Problem]:
+    run = build_run(config, "truth", "nmpc", eta, 0, internal, models)
     controller = run.controller
     solve = controller.solve
     problems: list[Problem] = []
 
     def recording(x0, params, throttle):
-        problems.append((x0.copy(), params.copy(), tuple(throttle), controller.u_prev.copy()))
+        problems.append((x0.copy(), params.copy(), tuple(throttle)))
         return solve(x0, params, throttle)
 
     controller.solve = recording
-    metrics = run().metrics
-    if not metrics["success"]:
-        raise SystemExit(f"the recorded lap failed ({metrics['failure']}); nothing to time")
-    print(
-        f"recorded lap: internal {internal}, {len(problems)} steps, "
-        f"lap time {metrics['lap_time']} s, mean |e_y| {metrics['mean_abs_ey']:.4f} m"
-    )
+    m = run().metrics
+    outcome = f"lap {m['lap_time']} s" if m["success"] else f"failed ({m['failure']})"
+    print(f"\nrecorded: internal {internal}, η = {eta:g}, {len(problems)} problems, {outcome}")
     return problems
 
 
-def replay(controller: NominalNMPC, problems: list[Problem]) -> tuple[np.ndarray, np.ndarray]:
-    """Solve the problems in order, warm-starting like the controller does; per-solve times (ms)
-    and first inputs."""
+def controller_with(config: dict[str, Any], internal: str, models: Path, **nmpc: Any) -> Any:
+    cfg = copy.deepcopy(config)
+    for key, value in nmpc.items():
+        cfg["controllers"]["nmpc"][key] = value
+    if cfg["controllers"]["nmpc"]["solver"] == "ipopt":  # the reference: no compiled library
+        cfg["controllers"]["nmpc"]["compile"] = {"enabled": False}
+    return build_run(cfg, "truth", "nmpc", 0.0, 0, internal, models).controller
+
+
+def replay(controller: Any, problems: list[Problem]) -> dict[str, np.ndarray]:
+    """Solve the problems in order through the controller's solve (the default's rescue
+    included), warm-starting as in a run; per-solve time (ms), iterations, success and the first
+    input (NaN when the solve failed)."""
     controller.reset(problems[0][0][:6])
-    times, firsts = np.empty(len(problems)), np.empty((len(problems), 2))
-    for i, (x0, params, throttle, u_prev) in enumerate(problems):
-        controller.u_prev = u_prev
+    n = len(problems)
+    out = {"ms": np.empty(n), "iterations": np.empty(n), "ok": np.zeros(n, bool),
+           "first": np.full((n, 2), np.nan), "plans": [None] * n}  # fmt: skip
+    for i, (x0, params, throttle) in enumerate(problems):
         start = time.perf_counter()
-        out, ok = controller.solve(x0, params, throttle)
-        times[i] = time.perf_counter() - start
-        controller._sol = out if ok else None
-        firsts[i] = controller.inputs(out[0].full().ravel())[0] if ok else np.nan
-    return times * 1e3, firsts
+        plan, ok = controller.solve(x0, params, throttle)
+        out["ms"][i] = (time.perf_counter() - start) * 1e3
+        out["iterations"][i] = controller.backend.stats.iterations
+        out["ok"][i] = ok
+        if ok:
+            out["first"][i] = plan[0]
+            out["plans"][i] = plan
+    return out
 
 
-def rebuild_every_step(controller: NominalNMPC, problems: list[Problem], ipopt: dict) -> np.ndarray:
-    """The reference implementations' pattern: a new NLP and IPOPT instance per step, cold."""
+def rebuild_every_step(controller: Any, problems: list[Problem], opts: dict) -> np.ndarray:
+    """The reference implementations' pattern: a new NLP and IPOPT instance per step, cold.
+    (``controller`` has the multiple-shooting NLP as its rescue solver.)"""
     times = np.empty(len(problems))
-    for i, (x0, params, throttle, u_prev) in enumerate(problems):
+    for i, (x0, params, throttle) in enumerate(problems):
         start = time.perf_counter()
         built = controller.nlp()
-        solver = ca.nlpsol("nmpc", "ipopt", built["problem"], ipopt)
-        controller.u_prev = u_prev
-        cold = controller.cold_start(x0)
-        _, lbx, ubx = controller._prepare(cold, x0, throttle)
+        solver = ca.nlpsol("nmpc", "ipopt", built["problem"], opts)
+        backend = controller.rescue  # the multiple-shooting NLP's bounds and cold start
+        cold = backend.cold_start(x0, params[controller.layout["u_prev"]])
+        _, lbx, ubx = backend._prepare(cold, x0, throttle, True)
         solver(x0=cold, p=params, lbx=lbx, ubx=ubx, lbg=built["lbg"], ubg=built["ubg"])
         times[i] = time.perf_counter() - start
     return times * 1e3
 
 
-def controller_with(config: dict[str, Any], internal: str, models: Path, solver: str) -> Any:
-    cfg = copy.deepcopy(config)
-    cfg["controllers"]["nmpc"]["solver"] = solver
-    return build_run(cfg, "truth", "nmpc", 0.0, 0, internal, models).controller
+def row(
+    label: str, r: dict[str, Any], reference: dict[str, Any] | None, merit: Any = None
+) -> dict[str, Any]:
+    ms = r["ms"]
+    result = {
+        "median_ms": float(np.median(ms)), "p90_ms": float(np.percentile(ms, 90)),
+        "p99_ms": float(np.percentile(ms, 99)), "max_ms": float(ms.max()),
+        "iterations_median": float(np.median(r["iterations"])),
+        "iterations_max": int(r["iterations"].max()), "failed": int((~r["ok"]).sum()),
+        "n": int(ms.size),
+    }  # fmt: skip
+    text = (f"{label:34} {result['median_ms']:8.3f} {result['p90_ms']:8.3f} "
+            f"{result['p99_ms']:8.2f} {result['max_ms']:8.2f} {result['iterations_median']:5.0f} "
+            f"{result['iterations_max']:5d} {result['failed']:5d}")  # fmt: skip
+    if reference is not None:
+        diff = np.max(np.abs(r["first"] - reference["first"]), axis=1)
+        both = np.isfinite(diff)
+        within = diff[both] <= 1e-3
+        result["first_input_max_diff"] = float(np.max(diff[both])) if both.any() else None
+        result["within_1e-3"] = float(within.mean()) if both.any() else None
+        outside = np.flatnonzero(both)[~within]
+        result["outside_at_lap_fraction"] = [round(float(i) / len(diff), 3) for i in outside]
+        if merit is not None:  # a different local optimum: which one is lower?
+            result["outside_lower_or_equal_cost"] = int(sum(
+                merit(i, r["plans"][i]) <= merit(i, reference["plans"][i]) * (1 + 1e-9) + 1e-12
+                for i in outside))  # fmt: skip
+        text += f"   {result['first_input_max_diff']:.1e}  {100 * within.mean():5.1f} %"
+    print(text)
+    return result
 
 
-def summary(label: str, ms: np.ndarray) -> dict[str, float]:
-    row = {"median_ms": float(np.median(ms)), "p90_ms": float(np.percentile(ms, 90)), "n": len(ms)}
-    print(f"{label:44} {row['median_ms']:9.3f} {row['p90_ms']:9.3f} {row['n']:6d}")
-    return row
+def benchmark_lap(
+    config: dict[str, Any], internal: str, eta: float, args: argparse.Namespace
+) -> dict[str, Any]:
+    problems = record_lap(config, internal, eta, args.models)
+    nmpc = config["controllers"]["nmpc"]
+    tight = {"max_iter": 1000, "tol": 1e-8}
+    reference = replay(controller_with(config, internal, args.models, solver="ipopt", ipopt=tight),
+                       problems)  # fmt: skip
+    default = controller_with(config, internal, args.models)
+    replay(default, problems[:20])  # warm up caches and the compiled code
+    replays = [replay(default, problems) for _ in range(max(1, args.repeats))]
+    merged = {k: np.concatenate([r[k] for r in replays]) for k in ("ms", "iterations", "ok")}
+    merged["first"] = replays[0]["first"]
+    ipopt = replay(controller_with(config, internal, args.models, solver="ipopt"), problems)
+    old = replay(controller_with(config, internal, args.models, solver="sqpmethod"), problems)
+    opts = {"ipopt.print_level": 0, "ipopt.sb": "yes", "print_time": False,
+            "ipopt.max_iter": int(nmpc["ipopt"]["max_iter"])}  # fmt: skip
+    rebuilt = rebuild_every_step(default, problems[:: args.stride], opts)
+    a = {"ms": rebuilt, "iterations": np.zeros(rebuilt.size), "ok": np.ones(rebuilt.size, bool)}
+    print(
+        f"{'solver':34} {'median':>8} {'p90':>8} {'p99':>8} {'max':>8} {'it.med':>5} "
+        f"{'it.max':>5} {'fail':>5}   first-input diff vs IPOPT 1e-8, share ≤ 1e-3"
+    )
+
+    def merit(i: int, plan: np.ndarray) -> float:
+        return default.backend.merit(*problems[i], plan)
+
+    merged["plans"] = replays[0]["plans"]
+    rows = {
+        "default": row(f"default ({nmpc['solver']}, {len(replays)} replays)", merged,
+                       reference, merit),
+        "a_rebuild_ipopt": row("(a) NLP + IPOPT rebuilt, cold", a, None),
+        "b_ipopt_once": row("(b) IPOPT built once, warm", ipopt, reference),
+        "c_old_default": row("(c) old default (sqpmethod)", old, reference),
+        "reference": row("reference IPOPT, tol 1e-8", reference, None),
+    }  # fmt: skip
+    rows["default"]["replay_medians_ms"] = [float(np.median(r["ms"])) for r in replays]
+    rows["default"]["rescues"] = int(default.rescues)
+    med = rows["default"]["median_ms"]
+    ratio_a = rows["a_rebuild_ipopt"]["median_ms"] / med
+    ratio_b = rows["b_ipopt_once"]["median_ms"] / med
+    medians = ", ".join(f"{m:.3f}" for m in rows["default"]["replay_medians_ms"])
+    print(
+        f"default: replay medians {medians} ms; ratio a/default {ratio_a:.0f}, "
+        f"b/default {ratio_b:.1f}; IPOPT rescues in the last replay {default.rescues}"
+    )
+    outside = rows["default"]["outside_at_lap_fraction"]
+    if outside:
+        lower = rows["default"]["outside_lower_or_equal_cost"]
+        print(f"default's first input more than 1e-3 from the reference at lap fractions "
+              f"{outside}: another local optimum, of lower or equal cost in {lower} of "
+              f"{len(outside)}")  # fmt: skip
+    return {"internal": internal, "eta": eta, "problems": len(problems), **rows,
+            "ratio_a_default": ratio_a, "ratio_b_default": ratio_b}  # fmt: skip
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--internal", default="epm", help="internal model (default: epm)")
+    parser.add_argument("--internal", nargs="+", default=["epm", "truth"])
+    parser.add_argument("--eta", nargs="+", type=float, default=[0.0, 4.0])
     parser.add_argument("--models", type=Path, default=Path("results/models"))
     parser.add_argument("--stride", type=int, default=10, help="(a) times every n-th problem")
-    parser.add_argument("--repeats", type=int, default=5, help="replays of the lap for (c)")
+    parser.add_argument("--repeats", type=int, default=3, help="replays of each lap (default)")
     parser.add_argument("--json", type=Path, help="also write the figures here")
     args = parser.parse_args()
     config = load_config()
-    problems = record_lap(config, args.internal, args.models)
-
-    solver = config["controllers"]["nmpc"]["solver"]
-    default = controller_with(config, args.internal, args.models, solver)
-    ipopt = controller_with(config, args.internal, args.models, "ipopt")
-    replay(default, problems[:20])  # warm up caches and the compiled code
-    replays = [replay(default, problems) for _ in range(max(1, args.repeats))]
-    c_ms, c_first = np.concatenate([r[0] for r in replays]), replays[0][1]
-    spread = [float(np.median(r[0])) for r in replays]
-    b_ms, b_first = replay(ipopt, problems)
-    ipopt_opts = {
-        "ipopt.print_level": 0,
-        "ipopt.sb": "yes",
-        "ipopt.max_iter": int(config["controllers"]["nmpc"]["ipopt_max_iter"]),
-        "print_time": False,
-    }
-    a_ms = rebuild_every_step(default, problems[:: args.stride], ipopt_opts)
-
-    print(f"\n{'solver (same problems, same process)':44} {'median':>9} {'p90':>9} {'n':>6}  (ms)")
-    rows = {
-        "a_rebuild_ipopt": summary("(a) NLP + IPOPT rebuilt every step, cold", a_ms),
-        "b_ipopt_once": summary("(b) IPOPT built once, warm start", b_ms),
-        "c_default": summary(f"(c) default ({config['controllers']['nmpc']['solver']})", c_ms),
-    }
-    rows["c_default"]["replay_medians_ms"] = spread
-    print(f"(c) medians of the {len(spread)} replays: {min(spread):.3f} … {max(spread):.3f} ms")
-    ratio_a = rows["a_rebuild_ipopt"]["median_ms"] / rows["c_default"]["median_ms"]
-    ratio_b = rows["b_ipopt_once"]["median_ms"] / rows["c_default"]["median_ms"]
-    agree = float(np.nanmax(np.abs(b_first - c_first)))
-    print(f"\nratio a/c {ratio_a:.1f}   ratio b/c {ratio_b:.1f}")
-    print(f"largest first-input difference (b) vs (c): {agree:.2e}")
+    results = [benchmark_lap(config, internal, eta, args) for internal in args.internal
+               for eta in args.eta]  # fmt: skip
     if args.json:
-        result = {"internal": args.internal, **rows, "ratio_a_c": ratio_a, "ratio_b_c": ratio_b,
-                  "first_input_max_diff": agree}  # fmt: skip
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=2) + "\n")
+        args.json.write_text(json.dumps(results, indent=2) + "\n")
 
 
 if __name__ == "__main__":

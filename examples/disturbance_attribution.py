@@ -4,8 +4,8 @@ off in turn (and with only the steering delay left), on one plant at one η, ove
 Several sources do not scale with η (the 20 ms steering delay, the IMU bias walk, the crosswind,
 the parameter mismatch): they are at full strength from the first η > 0. This script is how the
 finding that the printed PID and RISE (`pid_paper`, `rise_paper`) leave the track at every
-η > 0 was traced to the steering delay. It uses the same run builder as `cape rollout`; a source is switched off through its
-`active_from` key, as a user would in the config.
+η > 0 was traced to the steering delay. It uses the same run builder as `cape rollout`; a source
+is switched off through its `active_from` key, as a user would in the config.
 
     python examples/disturbance_attribution.py --controller pid_paper --eta 0.5 --seeds 5
 """

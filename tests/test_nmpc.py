@@ -79,6 +79,18 @@ def test_internal_step_is_the_same_on_numpy_and_casadi(cfg) -> None:
         )
 
 
+@pytest.mark.parametrize("name", ["nmpc", "anmpc", "rnmpc"])
+@pytest.mark.parametrize("eta", [0.0, 4.0])
+def test_no_failed_solve_with_the_true_internal_model(cfg, name, eta) -> None:
+    """SPEC §7.3: on the ground-truth plant with the true internal model, seed 0, every solve of
+    the three NMPCs succeeds at η = 0 and η = 4 (the SQP, or its IPOPT rescue); a behaviour of
+    the solver, not one CPU's iteration path."""
+    run = _run(cfg, controller=name, eta=eta)
+    m = run().metrics
+    assert m["fallbacks"] == 0, m
+    assert m["success"], m
+
+
 def _first_step(cfg):
     """A fresh NMPC that has solved its first problem from the start of the lap."""
     run = _run(cfg)
@@ -91,11 +103,18 @@ def _first_step(cfg):
     return controller, x0, proj, ref
 
 
-def test_the_nlp_prediction_is_the_internal_models_own_rollout(cfg) -> None:
-    controller, x0, _, _ = _first_step(cfg)
-    w = controller._w
+@pytest.mark.parametrize("solver", ["sqp", "ipopt"])
+def test_the_prediction_is_the_internal_models_own_rollout(cfg, solver) -> None:
+    """Both formulations predict with the internal model's own step: single shooting by
+    construction, multiple shooting through its dynamics constraints."""
+    run = _run(cfg, solver)
+    controller, line = run.controller, run.line
+    x0 = initial_state(line, 1.0)
+    controller.reset(x0)
+    proj = line.project(x0[0], x0[1], None)
+    controller.step(x0, proj, line.points(proj.s, controller.horizon))
     n = controller.horizon
-    xs, us = controller.states(w), controller.inputs(w)
+    xs, us = controller.backend.states(), controller._plan
     assert xs.shape == (n + 1, N_STATE) and us.shape == (n, 2)
     np.testing.assert_allclose(xs[0], np.r_[x0, 0.0, 0.0])
     x = np.r_[x0, 0.0, 0.0]
@@ -241,7 +260,10 @@ def test_the_ekf_estimate_beats_the_raw_measurement_at_eta_2(cfg) -> None:
     rms_raw = np.sqrt(np.mean((raw[:n] - truth[:n]) ** 2, axis=0))
     rms_ekf = np.sqrt(np.mean((est - truth[:n]) ** 2, axis=0))
     assert n > 300
-    assert np.all(rms_ekf[:3] < rms_raw[:3])  # pose: clearly better
+    assert np.all(rms_ekf[:2] < 0.7 * rms_raw[:2])  # position: clearly better
+    # the heading: as good as the measurement, whose noise is small since it scales with the
+    # wrapped heading (SPEC §6); the Euler model's own heading error per step is of its size
+    assert rms_ekf[2] < 1.1 * rms_raw[2]
     assert np.sum((rms_ekf / rms_raw) ** 2) < np.sum(np.ones(6))  # and better overall
 
 
@@ -265,13 +287,15 @@ def test_the_robust_margin_grows_with_the_prediction_error(cfg) -> None:
 
 
 def test_the_compiled_solver_is_built_once_and_reused(cfg, solver_cache: Path) -> None:
-    _run(cfg)  # compiles (or finds) the library
-    libraries = sorted(solver_cache.glob("sqpmethod_*.so"))
-    assert len(libraries) == 1
-    stamp = libraries[0].stat().st_mtime_ns
-    _run(cfg, controller="anmpc")  # the same NLP structure: the same library
-    assert sorted(solver_cache.glob("sqpmethod_*.so")) == libraries
-    assert libraries[0].stat().st_mtime_ns == stamp
+    """The condensed SQP's functions and its IPOPT rescue's NLP: one library each per model
+    structure, shared by the three NMPCs and never rebuilt."""
+    _run(cfg)  # compiles (or finds) the libraries
+    libraries = sorted(solver_cache.glob("*.so"))
+    assert [p.name.split("_")[0] for p in libraries] == ["condensed", "ipopt"]
+    stamps = [p.stat().st_mtime_ns for p in libraries]
+    _run(cfg, controller="anmpc")  # the same problem structure: the same libraries
+    assert sorted(solver_cache.glob("*.so")) == libraries
+    assert [p.stat().st_mtime_ns for p in libraries] == stamps
 
 
 def test_a_missing_nmpc_setting_names_the_config_key(cfg) -> None:

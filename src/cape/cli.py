@@ -232,9 +232,10 @@ def cmd_rollout(args: argparse.Namespace) -> None:
         **result.metrics,
     }
     write_text(out / "metrics.json", json.dumps(metrics, indent=2, sort_keys=True) + "\n")
+    ms = result.solve_ms
     timing = {
-        "solve_ms_median": float(np.median(result.solve_ms)) if result.solve_ms.size else None,
-        "solve_ms_p90": float(np.percentile(result.solve_ms, 90)) if result.solve_ms.size else None,
+        f"solve_ms_{name}": float(np.percentile(ms, q)) if ms.size else None
+        for name, q in (("median", 50), ("p90", 90), ("p99", 99), ("max", 100))
     }
     write_text(out / "timing.json", json.dumps(timing, indent=2, sort_keys=True) + "\n")
     save_float_columns(out / "timeseries.parquet", result.series)
@@ -260,15 +261,21 @@ def cmd_build_solver(args: argparse.Namespace) -> None:
         Path(args.models_dir),
         args.raceline,
     )
-    library = getattr(run.controller, "library", None)
+    controller = run.controller
+    libraries = [
+        str(solver.library)
+        for solver in (getattr(controller, "backend", None), getattr(controller, "rescue", None))
+        if solver is not None and solver.library is not None
+    ]
+    library = libraries[0] if libraries else None
     record = {
         "controller": args.controller,
         "internal": args.internal,
-        "library": str(library) if library is not None else None,
-        "compiled": library is not None,
+        "libraries": libraries,
+        "compiled": bool(libraries),
     }
     write_text(args.out, json.dumps(record, indent=2, sort_keys=True) + "\n")
-    what = f"compiled {library}" if library is not None else "no compiled library (SX VM)"
+    what = f"compiled {', '.join(libraries)}" if library is not None else "no compiled library"
     print(f"{args.controller} with internal model {args.internal}: {what}")
 
 

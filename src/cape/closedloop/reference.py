@@ -8,7 +8,9 @@ around the previous progress, so a path that passes near itself is not confused.
 
 from __future__ import annotations
 
+from bisect import bisect_right
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -18,14 +20,23 @@ from cape.tracks.geometry import ClosedPath, Projection
 
 @dataclass(frozen=True)
 class ReferencePoints:
-    """Points k = 0 … N of the reference: arrays of length N+1."""
+    """Points k = 0 … N of the reference: arrays of length N+1. Heading and curvature are
+    evaluated on the path when first asked for (the controllers mostly need neither, and each
+    costs several spline evaluations per step)."""
 
     s: np.ndarray
     x: np.ndarray
     y: np.ndarray
-    heading: np.ndarray
-    curvature: np.ndarray
     speed: np.ndarray
+    path: ClosedPath
+
+    @cached_property
+    def heading(self) -> np.ndarray:
+        return self.path.heading(self.s)
+
+    @cached_property
+    def curvature(self) -> np.ndarray:
+        return self.path.curvature(self.s)
 
 
 class ReferenceLine:
@@ -43,11 +54,25 @@ class ReferenceLine:
         self.ts = ts
         self.window = float(settings["projection_window"])
         self.length = self.path.length
+        # the speed profile as Python lists closed at s = length, for the scalar lookups of
+        # ``points`` (np.interp with a period sorts its table on every call)
+        self._knots = [*self.path.s_points.tolist(), self.length]
+        self._speeds = [*self.v_path.tolist(), float(self.v_path[0])]
 
     def v_ref(self, s: np.ndarray | float) -> np.ndarray:
         """Reference speed at arc length ``s``: the scaled, clipped path speed."""
         v = np.interp(np.mod(s, self.length), self.path.s_points, self.v_path, period=self.length)
         return np.clip(self.scale * v, self.v_min, self.v_max)
+
+    def _v_ref_scalar(self, s: float) -> float:
+        """``v_ref`` at one arc length: the same linear interpolation as ``np.interp``'s (the
+        same expression, so the same bits), without NumPy's per-call cost."""
+        s = s % self.length
+        knots, speeds = self._knots, self._speeds
+        i = min(bisect_right(knots, s) - 1, len(knots) - 2)
+        slope = (speeds[i + 1] - speeds[i]) / (knots[i + 1] - knots[i])
+        v = self.scale * (slope * (s - knots[i]) + speeds[i])
+        return min(max(v, self.v_min), self.v_max)
 
     def project(self, px: float, py: float, s_hint: float | None) -> Projection:
         """Projection near ``s_hint`` (global search when there is none)."""
@@ -59,19 +84,15 @@ class ReferenceLine:
 
     def points(self, s0: float, n: int) -> ReferencePoints:
         """Reference points k = 0 … n starting at progress ``s0``."""
-        s = np.empty(n + 1)
-        s[0] = s0
-        for k in range(1, n + 1):
-            s[k] = s[k - 1] + float(self.v_ref(s[k - 1])) * self.ts
-        xy = self.path.position(s)
-        return ReferencePoints(
-            s=s,
-            x=xy[0],
-            y=xy[1],
-            heading=self.path.heading(s),
-            curvature=self.path.curvature(s),
-            speed=self.v_ref(s),
-        )
+        s, speed = [float(s0)], []
+        for _ in range(n):
+            v = self._v_ref_scalar(s[-1])
+            speed.append(v)
+            s.append(s[-1] + v * self.ts)
+        speed.append(self._v_ref_scalar(s[-1]))
+        s_arr = np.array(s)
+        xy = self.path.position(s_arr)
+        return ReferencePoints(s=s_arr, x=xy[0], y=xy[1], speed=np.array(speed), path=self.path)
 
 
 class ProgressTracker:

@@ -72,6 +72,7 @@ def run_lap(
     lap_time: float | None = None
     steps = 0
     fallback_steps: list[bool] = []
+    rescued, iterations = 0, []
     last_pose = x[:2].copy()
     centre_s = track.center.project(x[0], x[1]).s
     for k in range(max_steps):
@@ -84,6 +85,9 @@ def run_lap(
             break
         solve_ms.append((time.perf_counter() - start) * 1e3)
         fallback_steps.append(bool(info.get("fallback", False)))
+        rescued += bool(info.get("rescued", False))
+        if "iterations" in info:
+            iterations.append(int(info["iterations"]))
         if not np.all(np.isfinite(u_cmd)):
             failure = "diverged"
             break
@@ -120,6 +124,9 @@ def run_lap(
     series = {key: np.asarray(values, dtype=float) for key, values in rows.items()}
     metrics = summarise(series, failure, lap_time, steps, time_limit, penalty)
     metrics["fallbacks"] = sum(fallback_steps)  # steps whose solve failed (model-based)
+    metrics["rescues"] = rescued  # steps the SQP left to its IPOPT rescue
+    metrics["solver_iterations_median"] = float(np.median(iterations)) if iterations else None
+    metrics["solver_iterations_max"] = max(iterations) if iterations else None
     window = max(round(failure_window / ts), 0)
     metrics.update(
         failure_location(failure, car.total, line.length, last_pose, fallback_steps, window)

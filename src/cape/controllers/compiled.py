@@ -50,15 +50,50 @@ def make_nlpsol(
     return ca.nlpsol(name, plugin, str(library), opts), library
 
 
+def compiled_functions(
+    name: str, functions: dict[str, ca.Function], compile_settings: dict[str, Any]
+) -> tuple[dict[str, ca.Function], Path | None]:
+    """The same functions, loaded from one cached compiled library (built when missing), and
+    that library; unchanged, with None, when the compiler is missing."""
+    compiler = str(compile_settings.get("compiler", "gcc"))
+    if shutil.which(compiler) is None:
+        _warn_once(f"compiler {compiler!r} not found; the solver's functions run uncompiled")
+        return functions, None
+    flags = [str(f) for f in compile_settings.get("flags", ["-O1"])]
+    cache = Path(str(compile_settings.get("cache", "results/solvers")))
+
+    def generate(directory: Path) -> Path:
+        gen = ca.CodeGenerator(f"{name}.c", {"with_header": False})
+        for function in functions.values():
+            gen.add(function)
+        here = Path.cwd()
+        os.chdir(directory)
+        try:
+            gen.generate()
+        finally:
+            os.chdir(here)
+        return directory / f"{name}.c"
+
+    library = _compiled(generate, "condensed", cache, compiler, flags)
+    loaded = {key: ca.external(f.name(), str(library)) for key, f in functions.items()}
+    return loaded, library
+
+
 def compiled_library(
     solver: ca.Function, plugin: str, cache: Path, compiler: str, flags: list[str]
 ) -> Path:
     """The cached shared library of ``solver``'s NLP functions, compiled when missing."""
+    return _compiled(lambda tmp: _generate(solver, tmp), plugin, cache, compiler, flags)
+
+
+def _compiled(generate: Any, prefix: str, cache: Path, compiler: str, flags: list[str]) -> Path:
+    """Generate C source with ``generate(folder)``, and return the cached library built from
+    it (``<cache>/<prefix>_<hash of source and flags>.so``), compiling it when missing."""
     with tempfile.TemporaryDirectory() as tmp:
-        source = _generate(solver, Path(tmp))
+        source = generate(Path(tmp))
         text = source.read_bytes()
         key = hashlib.sha256(text + " ".join([compiler, *flags]).encode()).hexdigest()[:16]
-        library = cache / f"{plugin}_{key}.so"
+        library = cache / f"{prefix}_{key}.so"
         if library.is_file():
             return library
         cache.mkdir(parents=True, exist_ok=True)

@@ -34,6 +34,7 @@ class NoiseLevels:
     process_floor: float = 0.0
     bias_sigma: tuple[float, float] = (0.0, 0.0)  # per step, on ψ and ω
     wind: tuple[float, float, float, float] | None = None  # vy gain, vx floor, ω gain, ω floor
+    wrap_heading: bool = True  # the heading noise scales with the wrapped heading (SPEC §6)
 
     @classmethod
     def from_pipeline(cls, pipe: Any) -> NoiseLevels:
@@ -43,6 +44,7 @@ class NoiseLevels:
             kw["measurement_sigma"] = float(pipe.noise.sigma)
             kw["measurement_floor"] = tuple(float(v) for v in np.broadcast_to(
                 pipe.noise.floor, (N_EKF,)))  # fmt: skip
+            kw["wrap_heading"] = bool(pipe.noise.wrap_heading)
         if pipe.process is not None:
             kw["process_sigma"] = float(pipe.process.sigma)
             kw["process_floor"] = float(pipe.process.floor)
@@ -83,7 +85,10 @@ class ExtendedKalmanFilter:
 
     def measurement_var(self, z: np.ndarray, steps: int) -> np.ndarray:
         lv = self.levels
-        var = (lv.measurement_sigma * np.abs(z) + np.asarray(lv.measurement_floor)) ** 2
+        size = np.abs(z)
+        if lv.wrap_heading:
+            size[2] = abs(wrap_angle(float(z[2])))
+        var = (lv.measurement_sigma * size + np.asarray(lv.measurement_floor)) ** 2
         var[2] += steps * lv.bias_sigma[0] ** 2  # the bias walk's spread so far
         var[5] += steps * lv.bias_sigma[1] ** 2
         return var

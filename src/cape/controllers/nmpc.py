@@ -1,24 +1,25 @@
 """Nominal NMPC (SPEC §7.3) in CasADi, and the base of the adaptive and robust variants.
 
-Multiple shooting over N steps with the internal model's own discrete step (Euler velocities,
-mid-step pose, the applied input as a state). The decision variables are ordered stage by stage,
-``[x_0, u_0, ε_1, x_1, u_1, ε_2, …, x_N]``, and so are the constraints, so the QP's KKT matrix is
-banded and the sparse QP solver's factorisation stays cheap. The initial state is fixed through
-the bounds of x_0. Φ, the previous input, the reference points, the track constraint's centre
-points and normals, the constraint's bound, an additive disturbance estimate d̂ (SPEC §7.5) and
-the drivetrain factors Θ (SPEC §7.4) are NLP *parameters*: the NLP is built once per run and each
+The optimal control problem is defined once, stage by stage (``stage_terms``, ``model_step``):
+cost Σ_{k=1..N} ‖p_k − p_ref,k‖²_Q + Σ_{k=0..N−1} ‖Δu_k‖²_R + Σ (w1·ε_k + w2·ε_k²), soft track
+constraints |n_k·(p_k − c_k)| ≤ half width − margin + ε_k, input bounds and |Δδ| ≤ 0.1, and
+the internal model's own discrete step (Euler velocities, mid-step pose, the applied input as a
+state). Φ, the previous input, the reference points, the track constraint's centre points and
+normals, the constraint's bound, an additive disturbance estimate d̂ (SPEC §7.5) and the
+drivetrain factors Θ (SPEC §7.4) are *parameters*: the problem is built once per run and each
 solve is warm-started from the shifted previous solution.
 
-Cost Σ_{k=1..N} ‖p_k − p_ref,k‖²_Q + Σ_{k=0..N−1} ‖Δu_k‖²_R + Σ (w1·ε_k + w2·ε_k²), with soft
-track constraints |n_k·(p_k − c_k)| ≤ half width − margin + ε_k, input bounds and |Δδ| ≤ 0.1.
-When the internal model has no throttle path (DPM predicts Frx), only the steering is
-optimised and the throttle comes from the PID speed loop. When a solve fails, the controller
-applies the next input of its previous plan and counts a fallback.
+Two formulations of that problem, chosen by ``solver``: ``sqp`` (the default) eliminates the
+states and solves the condensed problem with a feasible-iterate SQP (``cape.controllers.sqp``);
+``ipopt`` (the reference) and ``sqpmethod`` (CasADi's SQP, the old default) solve the
+multiple-shooting NLP (``nlp``, ``cape.controllers.shooting``). When the internal model has no
+throttle path (DPM predicts Frx), only the steering is optimised and the throttle comes from the
+PID speed loop. When a solve fails, the controller applies the next input of its previous plan
+and counts a fallback.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import casadi as ca
@@ -27,14 +28,15 @@ import numpy as np
 from cape.closedloop.internal import N_STATE
 from cape.closedloop.reference import ReferencePoints
 from cape.controllers.base import Controller, PIDLoop, require
-from cape.controllers.compiled import make_nlpsol
 from cape.controllers.registry import register_controller
+from cape.controllers.shooting import MultipleShootingNLP, ipopt_options, sqpmethod_options
+from cape.controllers.sqp import CondensedSQP
 from cape.errors import CapeError
 from cape.tracks.geometry import Projection
 
 N_INPUT = 2
-SETTINGS = ("horizon", "Q", "R", "margin", "slack_penalty", "solver", "ipopt_max_iter",
-            "sqp_max_iter", "sqp_tol", "qp_max_iter", "speed")  # fmt: skip
+SETTINGS = ("horizon", "Q", "R", "margin", "slack_penalty", "solver", "sqp", "ipopt",
+            "sqpmethod", "speed")  # fmt: skip
 STAGE = N_STATE + N_INPUT + 1  # x_k, u_k, ε_{k+1}
 
 
@@ -50,6 +52,7 @@ class NominalNMPC(Controller):
         self.horizon = int(self.settings["horizon"])
         self._prepare_track_lookup()
         self._index()
+        self._layout()
         self._build()
 
     # --- the track constraint's geometry, precomputed along the reference line ----------------
@@ -90,119 +93,111 @@ class NominalNMPC(Controller):
         return w[self._iu]
 
     # --- the NLP, built once -------------------------------------------------------------------
-    def _symbols(self) -> dict[str, ca.SX]:
+    def _layout(self) -> None:
+        """Where each parameter of the NLP lives in its parameter vector."""
         n = self.horizon
-        return {
-            "phi": ca.SX.sym("phi", self.internal.n_phi),
-            "u_prev": ca.SX.sym("u_prev", N_INPUT),
-            "ref": ca.SX.sym("ref", 2, n),
-            "centre": ca.SX.sym("centre", 2, n),
-            "normal": ca.SX.sym("normal", 2, n),
-            "bound": ca.SX.sym("bound"),
-            "dhat": ca.SX.sym("dhat", 3),
-            "theta": ca.SX.sym("theta", 3),
-        }
+        sizes = {"phi": self.internal.n_phi, "u_prev": N_INPUT, "ref": 2 * n, "centre": 2 * n,
+                 "normal": 2 * n, "bound": 1, "dhat": 3, "theta": 3}  # fmt: skip
+        self.layout, start = {}, 0
+        for name, size in sizes.items():
+            self.layout[name] = slice(start, start + size)
+            start += size
+        self.n_param = start
 
-    def nlp(self) -> dict[str, Any]:
-        """The NLP as CasADi expressions, with the bounds of its constraints."""
-        n, internal, s = self.horizon, self.internal, self.settings
-        w = ca.SX.sym("w", self.n_w)
-        p = self._symbols()
+    def stage_terms(
+        self, x_next: Any, u: Any, u_before: Any, e: Any, p: Any, k: int
+    ) -> tuple[Any, Any, Any, Any]:
+        """Stage k of the optimal control problem, the one definition both formulations use:
+        its cost ``q‖p_{k+1} − p_ref‖² + r_T·ΔT² + r_δ·Δδ² + w1·ε + w2·ε²``, its steering change
+        Δδ (bounded by the rate limit), the track offset of p_{k+1} along the centre line's
+        normal (bounded by the soft constraint |offset| ≤ bound + ε), and the residual vector
+        whose squared norm is the cost's quadratic part (Gauss–Newton)."""
+        s = self.settings
         q, r_t, r_d = float(s["Q"]), float(s["R"][0]), float(s["R"][1])
         w1, w2 = float(s["slack_penalty"][0]), float(s["slack_penalty"][1])
+        layout = self.layout
+        ref = ca.reshape(p[layout["ref"]], 2, self.horizon)[:, k]
+        centre = ca.reshape(p[layout["centre"]], 2, self.horizon)[:, k]
+        normal = ca.reshape(p[layout["normal"]], 2, self.horizon)[:, k]
+        du = u - u_before
+        pos = x_next[0:2]
+        cost = q * ca.sumsqr(pos - ref) + r_t * du[0] ** 2 + r_d * du[1] ** 2 + w1 * e + w2 * e**2
+        residual = ca.vertcat(
+            np.sqrt(q) * (pos - ref), np.sqrt(r_t) * du[0], np.sqrt(r_d) * du[1], np.sqrt(w2) * e
+        )
+        offset = ca.dot(normal, pos - centre)
+        return cost, du[1], offset, residual
+
+    def model_step(self, x: Any, u: Any, p: Any) -> Any:
+        """The internal model's step with the NLP's parameters (Φ, d̂, Θ)."""
+        layout = self.layout
+        return self.internal.step(x, u, p[layout["phi"]], p[layout["dhat"]], p[layout["theta"]])
+
+    def nlp(self) -> dict[str, Any]:
+        """The multiple-shooting NLP as CasADi expressions, with the bounds of its constraints
+        (IPOPT's and CasADi's sqpmethod's formulation)."""
+        n = self.horizon
+        w = ca.SX.sym("w", self.n_w)
+        p = ca.SX.sym("p", self.n_param)
         step_max = self.limits.max_steering_step(self.ts)
         cost = 0
         g, lbg, ubg = [], [], []
         for k in range(n):
             x, u, e = w[self._ix[k]], w[self._iu[k]], w[self._ie[k]]
             x_next = w[self._ix[k + 1]]
-            g.append(x_next - internal.step(x, u, p["phi"], p["dhat"], p["theta"]))
+            g.append(x_next - self.model_step(x, u, p))
             lbg += [0.0] * N_STATE
             ubg += [0.0] * N_STATE
-            du = u - (p["u_prev"] if k == 0 else w[self._iu[k - 1]])
-            cost += r_t * du[0] ** 2 + r_d * du[1] ** 2
-            g.append(du[1])
+            before = p[self.layout["u_prev"]] if k == 0 else w[self._iu[k - 1]]
+            stage_cost, rate, offset, _ = self.stage_terms(x_next, u, before, e, p, k)
+            cost += stage_cost
+            g.append(rate)
             lbg.append(-step_max)
             ubg.append(step_max)
-            pos = x_next[0:2]
-            cost += q * ca.sumsqr(pos - p["ref"][:, k]) + w1 * e + w2 * e**2
-            offset = ca.dot(p["normal"][:, k], pos - p["centre"][:, k])
-            g += [offset - e - p["bound"], -offset - e - p["bound"]]
+            bound = p[self.layout["bound"]]
+            g += [offset - e - bound, -offset - e - bound]
             lbg += [-np.inf, -np.inf]
             ubg += [0.0, 0.0]
-        params = ca.vertcat(*[ca.vec(v) for v in p.values()])
         return {
-            "problem": {"x": w, "f": cost, "g": ca.vertcat(*g), "p": params},
+            "problem": {"x": w, "f": cost, "g": ca.vertcat(*g), "p": p},
             "lbg": np.array(lbg, dtype=float),
             "ubg": np.array(ubg, dtype=float),
         }
 
     def _build(self) -> None:
-        built = self.nlp()
-        self.solver, self.library = self._solver(built["problem"], str(self.settings["solver"]))
-        self._prepare = self._wrap(self.solver, built["lbg"], built["ubg"])
+        """The solver of the settings' ``solver``: ``sqp`` (the condensed SQP, the default),
+        ``ipopt`` (the reference) or ``sqpmethod`` (CasADi's SQP, the old default), the last
+        two on the multiple-shooting NLP."""
+        s, name = self.settings, str(self.settings["solver"])
+        compile_settings = s.get("compile")
+        self.rescue: MultipleShootingNLP | None = None
+        if name == "sqp":
+            self.backend: Any = CondensedSQP(
+                "ocp", self.horizon, N_STATE, self.n_param, self.layout, self.model_step,
+                self.stage_terms, self.limits, self.ts, {**s["sqp"], "compile": compile_settings},
+            )  # fmt: skip
+            if s["sqp"].get("rescue") == "ipopt":
+                self.rescue = self._multiple_shooting("ipopt")
+        elif name in ("ipopt", "sqpmethod"):
+            self.backend = self._multiple_shooting(name)
+        else:
+            raise CapeError(
+                f"controllers.{self.name}.solver: {name!r} is not one of sqp, ipopt, sqpmethod"
+            )
+        self.library = self.backend.library
 
-    def _wrap(self, solver: ca.Function, lbg: np.ndarray, ubg: np.ndarray) -> ca.Function:
-        """The solver's call for one step, with the warm start and the bounds formed by one
-        compiled-in-CasADi function: (previous solution, x0, throttle bounds) → (initial guess,
-        lbx, ubx). The solution and multipliers stay CasADi matrices between steps and the
-        constant constraint bounds are converted once: converting arrays at the Python boundary
-        would cost more than the compiled NLP functions themselves."""
-        n, nw = self.horizon, self.n_w
-        w_prev, x0 = ca.SX.sym("w_prev", nw), ca.SX.sym("x0", N_STATE)
-        throttle = ca.SX.sym("throttle", 2)  # lower and upper bound of every T_k
-        ix, iu = self._ix, self._iu
-        guess = ca.SX.zeros(nw)
-        for k in range(n + 1):  # x_0 ← x0, x_k ← x_{k+1} (the last one repeated)
-            source = x0 if k == 0 else w_prev[ix[min(k + 1, n)]]
-            guess[ix[k]] = source
-        for k in range(n):
-            guess[iu[k]] = w_prev[iu[min(k + 1, n - 1)]]
-        lim = self.limits
-        lbx, ubx = ca.SX(np.full(nw, -np.inf)), ca.SX(np.full(nw, np.inf))
-        lbx[iu[:, 1]], ubx[iu[:, 1]] = -lim.delta_max, lim.delta_max
-        lbx[iu[:, 0]], ubx[iu[:, 0]] = throttle[0], throttle[1]
-        lbx[ix[0]], ubx[ix[0]] = x0, x0
-        lbx[self._ie] = 0.0
-        self._lbg_dm, self._ubg_dm = ca.DM(lbg), ca.DM(ubg)
-        return ca.Function("nmpc_prepare", [w_prev, x0, throttle], [guess, lbx, ubx])
-
-    def _solver(self, nlp: dict[str, Any], name: str) -> tuple[ca.Function, Path | None]:
+    def _multiple_shooting(self, name: str) -> MultipleShootingNLP:
         s = self.settings
         if name == "ipopt":
-            opts: dict[str, Any] = {
-                "ipopt.print_level": 0,
-                "ipopt.sb": "yes",
-                "ipopt.max_iter": int(s["ipopt_max_iter"]),
-                "ipopt.warm_start_init_point": "yes",
-                "print_time": False,
-            }
-            plugin = "ipopt"
-        elif name == "sqp":
-            opts = {
-                "qpsol": "qrqp",
-                "qpsol_options": {
-                    "print_iter": False,
-                    "print_header": False,
-                    "print_info": False,
-                    "error_on_fail": False,
-                    "max_iter": int(s["qp_max_iter"]),
-                },
-                "hessian_approximation": "exact",
-                "convexify_strategy": "none",
-                "max_iter": int(s["sqp_max_iter"]),
-                "tol_pr": float(s["sqp_tol"]),
-                "tol_du": float(s["sqp_tol"]),
-                "print_header": False,
-                "print_iteration": False,
-                "print_status": False,
-                "print_time": False,
-                "error_on_fail": False,
-            }
-            plugin = "sqpmethod"
+            opts = ipopt_options(int(s["ipopt"]["max_iter"]), s["ipopt"].get("tol"))
         else:
-            raise CapeError(f"controllers.{self.name}.solver: {name!r} is not one of ipopt, sqp")
-        return make_nlpsol(self.name, plugin, nlp, opts, s.get("compile"))
+            m = s["sqpmethod"]
+            opts = sqpmethod_options(int(m["max_iter"]), float(m["tol"]), int(m["qp_max_iter"]))
+        index = {"x": self._ix, "u": self._iu, "e": self._ie}
+        return MultipleShootingNLP(
+            "nmpc", name, self.nlp(), index, self.limits, self.layout["u_prev"], opts,
+            s.get("compile"),
+        )  # fmt: skip
 
     # --- what the variants change ----------------------------------------------------------------
     def estimate(self, z: np.ndarray) -> np.ndarray:
@@ -221,18 +216,14 @@ class NominalNMPC(Controller):
         super().reset(z0)
         self.internal.reset(z0)
         self.speed = PIDLoop.from_config(self.settings["speed"], self.ts)
-        self._sol: list[ca.DM] | None = None  # solution and multipliers, kept as CasADi matrices
+        self.backend.reset()
         self._plan: np.ndarray | None = None
         self._last: tuple[np.ndarray, np.ndarray] | None = None
         self.fallbacks = 0
+        self.rescues = 0
         self.dhat = np.zeros(3)
         self._theta_one = np.ones(3)
         self.phi_now: np.ndarray | None = None
-
-    @property
-    def _w(self) -> np.ndarray | None:
-        """The last solution as an array (None after a failure)."""
-        return None if self._sol is None else self._sol[0].full().ravel()
 
     def parameters(self, ref: ReferencePoints, phi: np.ndarray) -> np.ndarray:
         """The NLP's parameter vector for this step."""
@@ -253,32 +244,21 @@ class NominalNMPC(Controller):
 
     def solve(
         self, x0: np.ndarray, params: np.ndarray, throttle: tuple[float, float]
-    ) -> tuple[list[ca.DM], bool]:
-        """One NLP solve, warm-started from the previous solution (or x0 and u_prev held)."""
-        if self._sol is None:
-            guess, lbx, ubx = self._prepare(self.cold_start(x0), x0, throttle)
-            multipliers = {}
-        else:
-            guess, lbx, ubx = self._prepare(self._sol[0], x0, throttle)
-            multipliers = {"lam_x0": self._sol[1], "lam_g0": self._sol[2]}
-        sol = self.solver(
-            x0=guess,
-            p=params,
-            lbx=lbx,
-            ubx=ubx,
-            lbg=self._lbg_dm,
-            ubg=self._ubg_dm,
-            **multipliers,
-        )
-        out = [sol["x"], sol["lam_x"], sol["lam_g"]]
-        return out, bool(self.solver.stats()["success"])
-
-    def cold_start(self, x0: np.ndarray) -> np.ndarray:
-        """x0 and the previous input held over the horizon (its shift is itself)."""
-        w = np.zeros(self.n_w)
-        w[self._ix] = x0
-        w[self._iu] = self.u_prev
-        return w
+    ) -> tuple[np.ndarray | None, bool]:
+        """One solve, warm-started from the previous solution: the plan (N × 2) and success.
+        When the condensed SQP does not converge and a rescue solver is configured, IPOPT solves
+        the same problem from the SQP's last iterate (its states rolled out), and its solution
+        becomes the SQP's next warm start."""
+        plan, ok = self.backend.solve(x0, params, throttle)
+        if ok or self.rescue is None:
+            return plan, ok
+        self.rescues += 1
+        inputs, slacks = self.backend.iterate()
+        guess = self.rescue.decision_vector(self.backend.states(), inputs, slacks)
+        plan, ok = self.rescue.solve(x0, params, throttle, guess=guess)
+        if ok:
+            plan = self.backend.adopt(plan)
+        return plan, ok
 
     def throttle_bounds(self, z: np.ndarray, ref: ReferencePoints) -> tuple[float, float]:
         """(T_min, T_max), or the speed loop's throttle held when the model has no throttle path."""
@@ -297,11 +277,13 @@ class NominalNMPC(Controller):
         phi = self.internal.phi()
         self.phi_now = phi
         x0 = np.concatenate([z, self.u_prev])
-        out, ok = self.solve(x0, self.parameters(ref, phi), self.throttle_bounds(z, ref))
+        rescues = self.rescues
+        plan, ok = self.solve(x0, self.parameters(ref, phi), self.throttle_bounds(z, ref))
+        info = {"fallback": not ok, "rescued": self.rescues > rescues,
+                "iterations": self.backend.stats.iterations}  # fmt: skip
         if ok:
-            self._sol = out
-            self._plan = self.inputs(out[0].full().ravel())
-            u = self._plan[0]
+            self._plan = plan
+            u = plan[0]
         else:
             self.fallbacks += 1
             if self._plan is not None and len(self._plan) > 1:
@@ -309,8 +291,7 @@ class NominalNMPC(Controller):
                 u = self._plan[0]
             else:
                 u = self.u_prev.copy()
-            self._sol = None
         u = self.limits.clip(u, delta_prev=float(self.u_prev[1]), ts=self.ts)
         self._last = (z.copy(), u.copy())
         self.u_prev = u
-        return u, {"fallback": not ok}
+        return u, info

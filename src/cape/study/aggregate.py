@@ -42,6 +42,8 @@ METRICS = [
     "mean_abs_dT",
     "mean_abs_ddelta",
     "fallbacks",
+    "rescues",
+    "solver_iterations_median",
     "solve_ms_median",
 ]
 
