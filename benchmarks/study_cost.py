@@ -1,55 +1,79 @@
-"""What the study's rollouts cost: job count and wall seconds per job from the
-``benchmark:`` files Snakemake writes (``results/benchmarks/runs/...tsv``), grouped by study and
-controller, and the wall time they add up to on N cores.
+"""What the study costs: training per model, and the rollouts per study and controller.
 
-Snakemake's benchmark times a job from the start of its shell command to its end, so the
-figures include the process start (imports, loading the model and the compiled solver); the
-per-job overhead of the scheduler itself is not in them. (Snakemake's ``cpu_time`` column is
-sampled every few seconds and misses most of a short job, so it is not used.)
+Training times come from Snakemake's ``benchmark:`` files of the training rules
+(``results/benchmarks/train/<model>.tsv``). A rollout job times its own phases into its
+``timing.json`` (``job_s``: start-up, i.e. interpreter and imports up to the run's building;
+building the run, i.e. models and the compiled solver; the lap; writing), because Snakemake's
+benchmark monitor roughly doubled the wall time of these 1–3 s jobs. A run shared by two studies
+is counted once, under the study it was computed for.
 
-    python benchmarks/study_cost.py [--root results/benchmarks/runs] [--cores 2]
+    python benchmarks/study_cost.py [--results results] [--cores 2]
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import json
 from collections import defaultdict
 from pathlib import Path
 
+PHASES = ("startup", "build", "lap", "write")
 
-def read(root: Path) -> list[dict]:
-    """One row per run: study, controller, η, wall s."""
-    rows = []
-    for path in sorted(root.glob("*/*/*/*/eta*/seed*.tsv")):
-        study, _plant, _internal, controller, eta = path.relative_to(root).parts[:5]
+
+def training(results: Path) -> dict[str, float]:
+    """Wall seconds of each model's training job."""
+    out = {}
+    for path in sorted((results / "benchmarks" / "train").glob("*.tsv")):
         with path.open() as handle:
-            record = next(csv.DictReader(handle, delimiter="\t"))
-        rows.append({
-            "study": study, "controller": controller, "eta": eta.removeprefix("eta"),
-            "wall": float(record["s"]),
-        })  # fmt: skip
+            out[path.stem] = float(next(csv.DictReader(handle, delimiter="\t"))["s"])
+    return out
+
+
+def rollouts(results: Path) -> list[dict]:
+    """One row per computed run: study, controller, and the wall seconds of each phase."""
+    rows = []
+    for path in sorted((results / "runs").glob("*/*/*/*/eta*/seed*/timing.json")):
+        study, _plant, _internal, controller = path.relative_to(results / "runs").parts[:4]
+        job = json.loads(path.read_text()).get("job_s")
+        if job is None:  # a run of an older version, without its phases
+            continue
+        rows.append({"study": study, "controller": controller, "steps": job.get("steps", 0),
+                     **{phase: float(job.get(phase, 0.0)) for phase in PHASES}})  # fmt: skip
     return rows
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--root", type=Path, default=Path("results/benchmarks/runs"))
+    parser.add_argument("--results", type=Path, default=Path("results"))
     parser.add_argument("--cores", type=int, default=2)
     args = parser.parse_args()
-    rows = read(args.root)
+
+    trained = training(args.results)
+    print("training (wall s per job):", ", ".join(f"{m} {s:.0f}" for m, s in trained.items())
+          or "no benchmark files")  # fmt: skip
+
+    rows = rollouts(args.results)
     if not rows:
-        raise SystemExit(f"{args.root}: no benchmark files (run the study first)")
-    groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
+        raise SystemExit(f"no timing.json with job phases under {args.results / 'runs'}")
+    cells: dict[tuple[str, str], list[dict]] = defaultdict(list)
     for row in rows:
-        groups[(row["study"], row["controller"])].append(row)
-    print(f"{'study':<10}{'controller':<12}{'jobs':>6}{'wall s/job':>12}")
-    for (study, controller), group in sorted(groups.items()):
-        wall = sum(r["wall"] for r in group) / len(group)
-        print(f"{study:<10}{controller:<12}{len(group):>6}{wall:>12.1f}")
-    wall = sum(r["wall"] for r in rows)
-    print(f"{len(rows)} jobs: {wall / 3600:.2f} h of job wall time, "
-          f"{wall / args.cores / 3600:.2f} h on {args.cores} cores")  # fmt: skip
+        cells[(row["study"], row["controller"])].append(row)
+    print(f"\n{'study':10} {'controller':11} {'jobs':>5} {'job s':>8} {'s/job':>6} "
+          f"{'fixed s/job':>11} {'lap s/job':>9} {'ms/step':>8}")  # fmt: skip
+    total = fixed_total = 0.0
+    for (study, controller), group in sorted(cells.items()):
+        fixed = sum(r["startup"] + r["build"] + r["write"] for r in group)
+        lap = sum(r["lap"] for r in group)
+        steps = sum(r["steps"] for r in group)
+        total += fixed + lap
+        fixed_total += fixed
+        n = len(group)
+        print(f"{study:10} {controller:11} {n:5d} {fixed + lap:8.0f} {(fixed + lap) / n:6.2f} "
+              f"{fixed / n:11.2f} {lap / n:9.2f} {1e3 * lap / max(steps, 1):8.2f}")  # fmt: skip
+    print(f"\n{len(rows)} rollouts: {total:.0f} s of job wall time ({fixed_total:.0f} s fixed, "
+          f"{total - fixed_total:.0f} s laps), {total / 3600:.2f} h; "
+          f"{total / args.cores / 60:.1f} min on {args.cores} cores")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -12,6 +12,7 @@ import pytest
 
 from cape.errors import CapeError
 from cape.study.aggregate import collect_runs, mean_ci, summarise
+from cape.study.grid import RunId, canonical, study_runs
 from cape.study.scorecard import at_a_glance, learned_claims
 from cape.study.tables import (
     best_controller,
@@ -39,6 +40,11 @@ def _write_run(root: Path, study: str, plant: str, internal: str, controller: st
     return folder / "metrics.json"
 
 
+def _of_their_folders(paths: list[Path]) -> list[tuple[str, Path]]:
+    """(study, metrics.json) pairs, each run of the study its folder names."""
+    return [(RunId.parse(p).study, p) for p in paths]
+
+
 def test_mean_ci_is_the_student_t_interval() -> None:
     mean, half, n = mean_ci([1.0, 2.0, 3.0, 4.0])
     # t(0.975, 3) = 3.182446305…, s = 1.290994…, half = t·s/√4
@@ -52,7 +58,7 @@ def test_runs_are_collected_with_their_study_and_model(tmp_path: Path) -> None:
         _write_run(tmp_path, "learned", "epm", "epm", "pid", "0", 0, True, 7.4, 0.02),
         _write_run(tmp_path, "truth", "truth", "epm", "nmpc", "0.5", 1, False, None, 0.1),
     ]
-    runs = collect_runs(paths, STUDIES)
+    runs = collect_runs(_of_their_folders(paths), STUDIES)
     assert list(runs["study"]) == ["learned", "truth"]
     assert list(runs["model"]) == ["epm", "epm"]  # the plant, then the internal model
     assert list(runs["eta_label"]) == ["0", "0.5"] and runs["eta"].iloc[1] == 0.5
@@ -61,12 +67,33 @@ def test_runs_are_collected_with_their_study_and_model(tmp_path: Path) -> None:
         collect_runs([], STUDIES)
 
 
+def test_a_run_two_studies_ask_for_is_computed_once_and_read_by_both(tmp_path: Path) -> None:
+    """The ablation's diagonal (internal = plant) repeats the learned study's runs: the grid
+    computes each once, in the first study's folder, and the aggregation reads it for both."""
+    config = {"seeds": 1, "studies": {
+        "learned": {"plants": ["epm"], "controllers": ["nmpc"]},
+        "ablation": {"plants": ["epm"], "internal": ["ddm", "epm"], "controllers": ["nmpc"],
+                     "eta": ["1"]},
+    }}  # fmt: skip
+    runs = study_runs(config, ["0", "1"], lambda controller: controller == "nmpc")
+    assert len(runs) == 4  # learned at η 0 and 1, the ablation's two internal models at η 1
+    computed = canonical(runs)
+    diagonal = RunId("ablation", "epm", "epm", "nmpc", "1", 0)
+    assert computed[diagonal] == RunId("learned", "epm", "epm", "nmpc", "1", 0)
+    assert len(set(computed.values())) == 3
+    assert RunId.parse(diagonal.folder(tmp_path) / "metrics.json") == diagonal
+    path = _write_run(tmp_path, "learned", "epm", "epm", "nmpc", "1", 0, True, 7.1, 0.01)
+    table = collect_runs([("learned", path), ("ablation", path)], STUDIES)
+    assert sorted(table["study"]) == ["ablation", "learned"]
+    assert table["lap_time"].tolist() == [7.1, 7.1]
+
+
 def test_summary_counts_successes_and_penalises_failures(tmp_path: Path) -> None:
     paths = [
         _write_run(tmp_path, "learned", "epm", "epm", "pid", "1", s, s < 2, 7.0 + s, 0.01 * (s + 1))
         for s in range(4)
     ]
-    summary = summarise(collect_runs(paths, STUDIES))
+    summary = summarise(collect_runs(_of_their_folders(paths), STUDIES))
     (cell,) = summary.to_dict("records")
     assert (cell["runs"], cell["successes"], cell["success_rate"]) == (4, 2, 0.5)
     assert cell["lap_time_mean"] == pytest.approx(7.5)  # the two laps only
@@ -81,7 +108,7 @@ def test_the_drawn_interval_stays_where_runs_can_be(tmp_path: Path) -> None:
         _write_run(tmp_path, "learned", "epm", "epm", "pid", "1", s, s < 2, 7.0, 0.01)
         for s in range(5)
     ]
-    (cell,) = summarise(collect_runs(paths, STUDIES)).to_dict("records")
+    (cell,) = summarise(collect_runs(_of_their_folders(paths), STUDIES)).to_dict("records")
     lap_mean, lap_half, _ = mean_ci([7.0, 7.0, 15.0, 15.0, 15.0])
     assert cell["lap_time_penalised_ci"] == pytest.approx(lap_half)
     assert lap_mean + lap_half > 15.0

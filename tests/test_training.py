@@ -50,6 +50,18 @@ def test_two_epochs_on_a_small_slice_run_in_seconds(config, small_data, name: st
     assert result.best_val_loss == min(r["val_loss"] for r in result.losses)
 
 
+def test_fused_adam_follows_the_loop_adam_within_rounding(config, small_data) -> None:
+    """The fused kernel is the same update up to rounding: losses within 1e-3 relative over the
+    first epochs (issue 15: a faster kernel may change only the last digits)."""
+    data = small_data[7]
+    spec = config["models"]["epm"]
+    fused = train_model("epm", spec, data, ts=TS, seed=0, epochs=8, progress=False, fused=True)
+    loop = train_model("epm", spec, data, ts=TS, seed=0, epochs=8, progress=False, fused=False)
+    for a, b in zip(fused.losses, loop.losses, strict=True):
+        assert a["train_loss"] == pytest.approx(b["train_loss"], rel=1e-3)
+        assert a["val_loss"] == pytest.approx(b["val_loss"], rel=1e-3)
+
+
 def test_same_seed_same_losses_other_seed_other_weights(config, small_data) -> None:
     a = _train(config, "epm", small_data[7], seed=0)
     b = _train(config, "epm", small_data[7], seed=0)

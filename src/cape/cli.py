@@ -6,13 +6,17 @@ user can fix are reported as one clear message (exit status 2), never as a trace
 
 from __future__ import annotations
 
-import argparse
-import sys
-from collections.abc import Callable, Sequence
-from pathlib import Path
-from typing import Any
+import time
 
-from cape.errors import CapeError
+STARTED = time.perf_counter()  # as the process starts: a rollout reports its own start-up
+
+import argparse  # noqa: E402
+import sys  # noqa: E402
+from collections.abc import Callable, Sequence  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+from cape.errors import CapeError  # noqa: E402
 
 
 def _add_config_args(parser: argparse.ArgumentParser) -> None:
@@ -179,11 +183,21 @@ def cmd_raceline(args: argparse.Namespace) -> None:
 def cmd_aggregate(args: argparse.Namespace) -> None:
     from cape.io import atomic_open
     from cape.study.aggregate import collect_runs, summarise
+    from cape.study.grid import RunId, canonical, study_runs
 
+    config = _config(args)
     paths = [Path(p) for p in args.runs]
     if args.runs_from:
         paths += [Path(line) for line in Path(args.runs_from).read_text().split() if line]
-    runs = collect_runs(paths, _config(args)["study"]["studies"])
+    if paths:  # the runs named, each of the study its folder says
+        pairs = [(RunId.parse(p).study, p) for p in paths]
+    else:  # every run of the config's grid, read where it was computed
+        internal = set(config["study"].get("internal_controllers", []))
+        grid = canonical(study_runs(config["study"], config["disturbances"]["eta"],
+                                    lambda c: c in internal))  # fmt: skip
+        pairs = [(run.study, computed.folder(args.root) / "metrics.json")
+                 for run, computed in grid.items()]  # fmt: skip
+    runs = collect_runs(pairs, config["study"]["studies"])
     with atomic_open(args.out, "wb") as handle:
         runs.to_parquet(handle, index=False)
     summary = summarise(runs)
@@ -211,6 +225,7 @@ def cmd_rollout(args: argparse.Namespace) -> None:
         eta = float(args.eta)
     except ValueError:
         raise CapeError(f"--eta {args.eta!r}: not a number") from None
+    started = time.perf_counter()
     run = build_run(
         config,
         args.plant,
@@ -221,9 +236,12 @@ def cmd_rollout(args: argparse.Namespace) -> None:
         Path(args.models_dir),
         args.raceline,
     )
+    built = time.perf_counter()
     result = run()
+    lapped = time.perf_counter()
     out = Path(args.out)
     metrics = {
+        "study": args.study,
         "plant": args.plant,
         "controller": args.controller,
         "internal": run.internal,
@@ -231,14 +249,23 @@ def cmd_rollout(args: argparse.Namespace) -> None:
         "seed": args.seed,
         **result.metrics,
     }
-    write_text(out / "metrics.json", json.dumps(metrics, indent=2, sort_keys=True) + "\n")
     ms = result.solve_ms
-    timing = {
+    timing: dict[str, Any] = {
         f"solve_ms_{name}": float(np.percentile(ms, q)) if ms.size else None
         for name, q in (("median", 50), ("p90", 90), ("p99", 99), ("max", 100))
     }
-    write_text(out / "timing.json", json.dumps(timing, indent=2, sort_keys=True) + "\n")
     save_float_columns(out / "timeseries.parquet", result.series)
+    # the job's wall time by phase (s): start-up (interpreter, imports, arguments), building the
+    # run (models, solver), the lap, writing; timing.json is written last
+    timing["job_s"] = {
+        "startup": round(started - STARTED, 4),
+        "build": round(built - started, 4),
+        "lap": round(lapped - built, 4),
+        "steps": int(metrics["steps"]),
+    }
+    write_text(out / "metrics.json", json.dumps(metrics, indent=2, sort_keys=True) + "\n")
+    timing["job_s"]["write"] = round(time.perf_counter() - lapped, 4)
+    write_text(out / "timing.json", json.dumps(timing, indent=2, sort_keys=True) + "\n")
     status = "lap" if metrics["success"] else f"failed ({metrics['failure']})"
     run_name = f"{args.plant}/{args.controller} η={args.eta} seed={args.seed}"
     print(f"{run_name}: {status}, lap time {metrics['lap_time']}")
@@ -361,6 +388,7 @@ def cmd_train(args: argparse.Namespace) -> None:
         seed=seed,
         epochs=args.epochs,
         threads=threads,
+        fused=bool(train_cfg.get("fused_adam", True)),
     )
     out = Path(args.out)
     meta = {
@@ -443,6 +471,15 @@ def cmd_export_network(args: argparse.Namespace) -> None:
         raise CapeError(f"--model {args.model}: expected NAME=FOLDER, e.g. epm=results/models/epm")
     out = export_network(folder, args.out, expected_name=name)
     print(f"wrote {out}: the {name} network for the NumPy closed loop")
+    compile_settings = _config(args).get("rollout", {}).get("compile")
+    if compile_settings and compile_settings.get("enabled", False):
+        import numpy as np
+
+        from cape.models.network import load_network
+
+        network = load_network(out, compile_settings)
+        network.phi(np.zeros((network.history, 7)))  # builds and caches the compiled GRU
+        print("compiled its GRU into the cache " + str(compile_settings.get("cache")))
 
 
 def cmd_openloop(args: argparse.Namespace) -> None:
@@ -626,6 +663,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--models-dir", default="results/models", help="folder of the trained models")
     p.add_argument("--raceline", help="reference .npz (default: results/raceline/<track>.npz)")
+    p.add_argument("--study", default="adhoc", help="the study the run belongs to (metrics.json)")
     _add_config_args(p)
     p.set_defaults(func=cmd_rollout)
 
@@ -644,8 +682,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "aggregate", help="every run's metrics in one table, and per-cell means with 95%% CIs"
     )
-    p.add_argument("runs", nargs="*", help="metrics.json files of the runs")
+    p.add_argument("runs", nargs="*", help="metrics.json files of the runs (default: the grid)")
     p.add_argument("--runs-from", metavar="FILE", help="a file listing metrics.json paths")
+    p.add_argument("--root", default="results/runs", help="where the grid's runs are")
     p.add_argument("--out", required=True, help="the tidy table of runs (.parquet)")
     p.add_argument("--summary", required=True, help="the per-cell summary (.parquet)")
     _add_config_args(p)
@@ -688,6 +727,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--model", required=True, metavar="NAME=DIR", help="trained model")
     p.add_argument("--out", help="output .npz (default: DIR/network.npz)")
+    _add_config_args(p)
     p.set_defaults(func=cmd_export_network)
 
     p = sub.add_parser("openloop", help="open-loop error table of trained models (SPEC §4.4)")

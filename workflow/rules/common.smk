@@ -7,6 +7,7 @@ from snakemake.utils import validate
 
 from cape.config import check_consistency
 from cape.controllers import controller_class
+from cape.study.grid import canonical, study_runs
 from cape.tracks.manifest import BAYESRACE_FILES
 
 
@@ -60,7 +61,7 @@ def model_config_json(model):
     return json.dumps(
         {
             "models": {model: spec},
-            "training": {k: config["training"][k] for k in ("seed", "threads")},
+            "training": {k: config["training"][k] for k in ("seed", "threads", "fused_adam")},
             "data": {k: config["data"][k] for k in ("ts", "split")},
         },
         sort_keys=True,
@@ -134,22 +135,27 @@ def rollout_config_json(controller):
     return json.dumps(sections, sort_keys=True)
 
 
+def grid_runs():
+    """Every run of the grid (cape.study.grid), each with the run that computes it (a run asked
+    for by two studies, the ablation's diagonal, is computed once)."""
+    runs = study_runs(config["study"], ETAS, uses_internal_model)
+    return canonical(runs)
+
+
+GRID = grid_runs()
+
+
+def aggregate_config_json():
+    """What the aggregation reads: the grid (studies, seeds, η) and which controllers have an
+    internal model, so that it reads every study's runs where they were computed."""
+    study = dict(config["study"])
+    study["internal_controllers"] = sorted(c for c in config["controllers"] if uses_internal_model(c))
+    return json.dumps({"study": study, "disturbances": {"eta": ETAS}}, sort_keys=True)
+
+
 def rollout_targets():
-    """metrics.json of every run of the grid."""
-    targets = []
-    seeds = range(config["study"]["seeds"])
-    for study, grid in config["study"]["studies"].items():
-        for plant in grid["plants"]:
-            for controller in grid["controllers"]:
-                # the feedback laws have no internal model: one run per plant (named after it)
-                internals = (grid.get("internal") or [plant]) if uses_internal_model(controller) else [plant]
-                for internal in internals:
-                    for eta in grid.get("eta", ETAS):
-                        for seed in seeds:
-                            targets.append(
-                                f"results/runs/{study}/{plant}/{internal}/{controller}/eta{eta}/seed{seed}/metrics.json"
-                            )
-    return targets
+    """metrics.json of every run the grid computes (each once)."""
+    return [f"{run.folder()}/metrics.json" for run in dict.fromkeys(GRID.values())]
 
 
 # --- the study's notebooks -------------------------------------------------------------------
@@ -175,9 +181,9 @@ CLOSED_LOOP_STUDIES = [s for s in config["study"]["studies"] if s not in OWN_NOT
 def example_series(study):
     """The time series the η = 0 figures draw: every run of ``study`` at η = 0, first seed."""
     return [
-        target.replace("metrics.json", "timeseries.parquet")
-        for target in rollout_targets()
-        if target.startswith(f"results/runs/{study}/") and "/eta0/seed0/" in target
+        f"{computed.folder()}/timeseries.parquet"
+        for run, computed in GRID.items()
+        if run.study == study and run.eta == "0" and run.seed == 0
     ]
 
 

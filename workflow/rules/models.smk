@@ -12,6 +12,9 @@ rule train:
         cfg=lambda wildcards: model_config_json(wildcards.model),
         out=lambda wildcards, output: os.path.dirname(output.weights),
     threads: config["training"]["threads"]
+    # the longest training first (EPM's 3000 epochs are the study's critical path), and every
+    # training before any rollout
+    priority: lambda wildcards: 100 + int(config["models"][wildcards.model]["train"]["epochs"]) // 10
     resources:
         runtime=240,
     conda:
@@ -53,12 +56,14 @@ rule export_network:
     localrule: True
     params:
         folder=lambda wildcards, input: os.path.dirname(input.weights),
+        cfg=lambda wildcards: config_json("rollout"),
     conda:
         CAPE_ENV
     log:
         "results/logs/export/{model}.log",
     shell:
-        "cape export-network --model {wildcards.model}={params.folder} --out {output} > {log} 2>&1"
+        "cape export-network --model {wildcards.model}={params.folder} --out {output}"
+        " --config-json {params.cfg:q} > {log} 2>&1"
 
 
 rule openloop_table:

@@ -12,7 +12,7 @@ rule aggregate:
         runs="results/study/runs.parquet",
         summary="results/study/summary.parquet",
     params:
-        cfg=lambda wildcards: config_json("study"),
+        cfg=lambda wildcards: aggregate_config_json(),
     conda:
         CAPE_ENV
     log:
@@ -20,7 +20,7 @@ rule aggregate:
     benchmark:
         "results/benchmarks/study/aggregate.tsv"
     shell:
-        "cape aggregate {input:q} --out {output.runs} --summary {output.summary}"
+        "cape aggregate --out {output.runs} --summary {output.summary}"
         " --config-json {params.cfg:q} > {log} 2>&1"
 
 

@@ -16,10 +16,13 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
+import casadi as ca
 import numpy as np
 
+from cape.buffered import BufferedCall
 from cape.models.physics import ModelPhysics
 from cape.models.trained import TrainedModel
+from cape.vehicle.backend import ops_for
 from cape.vehicle.dynamics import state_derivative
 from cape.vehicle.integrators import rk4_step
 
@@ -40,12 +43,13 @@ def _identity(p: Mapping[str, Any]) -> dict[str, Any]:
     return dict(p)
 
 
-def advance_pose(x: np.ndarray, v_next: tuple[float, float, float], ts: float) -> np.ndarray:
-    """New state from the new velocities and the mid-step heading (SPEC §5.1)."""
+def advance_pose(x: Any, v_next: tuple[Any, Any, Any], ts: float) -> Any:
+    """New state from the new velocities and the mid-step heading (SPEC §5.1), any backend."""
     vx, vy, omega = v_next
+    ops = ops_for(x, vx, vy, omega)
     psi_mid = x[2] + 0.5 * ts * omega
-    c, s = np.cos(psi_mid), np.sin(psi_mid)
-    return np.array(
+    c, s = ops.cos(psi_mid), ops.sin(psi_mid)
+    return ops.stack(
         [
             x[0] + ts * (vx * c - vy * s),
             x[1] + ts * (vx * s + vy * c),
@@ -57,8 +61,20 @@ def advance_pose(x: np.ndarray, v_next: tuple[float, float, float], ts: float) -
     )
 
 
+def _physics_step(physics: ModelPhysics, params: Any, phi: ca.SX | None) -> ca.Function:
+    """The plant's step as one CasADi function, built from the same backend-neutral equations:
+    (x, previous input, input[, Φ]) → next x. ``params`` maps Φ (a symbol, or None for frozen
+    values) to the parameter mapping the equations read."""
+    x, u_fb, u = ca.SX.sym("x", 6), ca.SX.sym("u_fb", 2), ca.SX.sym("u", 2)
+    p = params(phi)
+    v = physics.step_with_params(x[3], x[4], x[5], (u_fb[0], u_fb[1]), (u[0], u[1]), p)
+    inputs = [x, u_fb, u] + ([phi] if phi is not None else [])
+    return ca.Function("plant_step", inputs, [advance_pose(x, v, physics.ts)])
+
+
 class _ModelPhysicsPlant:
-    """Shared bookkeeping: the state, the last applied input, the model's physics step."""
+    """Shared bookkeeping: the state, the last applied input, the model's physics step (one
+    compiled-in-CasADi function, called through its buffer: a few microseconds a step)."""
 
     def __init__(self, physics: ModelPhysics, transform: ParamTransform | None) -> None:
         self.physics = physics
@@ -71,12 +87,8 @@ class _ModelPhysicsPlant:
         self.x = np.asarray(x0, dtype=float).copy()
         self.u_prev = np.zeros(2)
 
-    def _advance(self, u: np.ndarray, p: dict[str, Any]) -> np.ndarray:
-        x = self.x
-        v = self.physics.step_with_params(
-            x[3], x[4], x[5], (self.u_prev[0], self.u_prev[1]), (u[0], u[1]), p
-        )
-        self.x = advance_pose(x, v, self.ts)
+    def _advance(self, u: np.ndarray, *phi: np.ndarray) -> np.ndarray:
+        self.x = self._step(self.x, self.u_prev, u, *phi)[0].copy()
         self.u_prev = np.asarray(u, dtype=float).copy()
         return self.x.copy()
 
@@ -88,6 +100,9 @@ class LearnedPlant(_ModelPhysicsPlant):
         super().__init__(model.physics, transform)
         self.predictor = model.network
         self.window = np.zeros((model.physics.history, 7))
+        phi = ca.SX.sym("phi", len(self.physics.param_names))
+        params = lambda phi: self.transform(self.physics.physical_params(phi))  # noqa: E731
+        self._step = BufferedCall(_physics_step(self.physics, params, phi))
 
     def reset(self, x0: np.ndarray) -> None:
         super().reset(x0)
@@ -98,8 +113,7 @@ class LearnedPlant(_ModelPhysicsPlant):
         x, fb = self.x, self.u_prev
         row = np.array([x[3], x[4], x[5], fb[0], fb[1], u[0] - fb[0], u[1] - fb[1]])
         self.window = np.vstack([self.window[1:], row])
-        phi = self.predictor.phi(self.window)
-        return self._advance(u, self.transform(self.physics.physical_params(phi)))
+        return self._advance(u, self.predictor.phi(self.window))
 
 
 class FixedParameterPlant(_ModelPhysicsPlant):
@@ -113,13 +127,24 @@ class FixedParameterPlant(_ModelPhysicsPlant):
     ) -> None:
         super().__init__(physics, transform)
         self.params = self.transform(physics.frozen_params(dict(frozen)))
+        # the frozen values enter as an input, as Φ does in the learned plant, so both plants
+        # evaluate the same expressions in the same order
+        names = list(frozen)
+        self._frozen = np.array([float(frozen[n]) for n in names])
+        values = ca.SX.sym("frozen", len(names))
+
+        def params(vec: ca.SX) -> dict[str, Any]:
+            return self.transform(physics.frozen_params({n: vec[i] for i, n in enumerate(names)}))
+
+        self._step = BufferedCall(_physics_step(physics, params, values))
 
     def step(self, u: np.ndarray) -> np.ndarray:
-        return self._advance(u, self.params)
+        return self._advance(u, self._frozen)
 
 
 class TruthPlant:
-    """The data-generating car: SPEC §1 with the true parameters, RK4 at Ts."""
+    """The data-generating car: SPEC §1 with the true parameters, RK4 at Ts (one CasADi
+    function of the shared equations, called through its buffer)."""
 
     def __init__(
         self, params: Mapping[str, Any], ts: float, transform: ParamTransform | None = None
@@ -127,15 +152,13 @@ class TruthPlant:
         self.ts = ts
         self.params = (transform or _identity)(params)
         self.x = np.zeros(6)
+        x, u = ca.SX.sym("x", 6), ca.SX.sym("u", 2)
+        rk4 = rk4_step(lambda x, v: state_derivative(x, v, self.params), x, u, ts)
+        self._step = BufferedCall(ca.Function("truth_rk4", [x, u], [rk4]))
 
     def reset(self, x0: np.ndarray) -> None:
         self.x = np.asarray(x0, dtype=float).copy()
 
     def step(self, u: np.ndarray) -> np.ndarray:
-        self.x = rk4_step(
-            lambda x, v: state_derivative(x, v, self.params),
-            self.x,
-            np.asarray(u, dtype=float),
-            self.ts,
-        )
+        self.x = self._step(self.x, u)[0].copy()
         return self.x.copy()

@@ -104,7 +104,7 @@ def run_lap(
         dx, dy = x_ref - x[0], y_ref - x[1]
         e_x = dx * math.cos(psi_ref) + dy * math.sin(psi_ref)
         e_y = -dx * math.sin(psi_ref) + dy * math.cos(psi_ref)
-        psi_path = float(line.path.heading(proj_car.s))
+        psi_path = line.path.heading_at(proj_car.s)
         e_cte = cross_track_error(x[0], x[1], proj_car.x, proj_car.y, psi_path)
         z = disturbances.measure(x)
         reference = (x_ref, y_ref, psi_ref, float(ref.speed[1]))

@@ -87,7 +87,9 @@ def build_internal(
         )
     folder = models_dir / str(model_name)
     if kind == "learned":
-        trained = (loaded or {}).get(str(model_name)) or load_trained(folder, model_name)
+        trained = (loaded or {}).get(str(model_name)) or load_trained(
+            folder, model_name, section(config, "rollout").get("compile")
+        )
         return InternalModel(trained.physics, "learned", predictor=trained.network)
     physics = load_physics(folder, model_name)
     return fixed_internal(physics, frozen_phi(models_dir, str(model_name)))
@@ -146,7 +148,9 @@ def build_run(
     if kind == "truth":
         plant: Plant = TruthPlant(GROUND_TRUTH.as_dict(), ts, transform)
     elif kind == "learned":
-        trained = load_trained(models_dir / str(model_name), expected_name=model_name)
+        trained = load_trained(
+            models_dir / str(model_name), model_name, section(config, "rollout").get("compile")
+        )
         loaded[str(model_name)] = trained
         plant = LearnedPlant(trained, transform)
     else:

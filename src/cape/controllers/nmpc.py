@@ -57,17 +57,24 @@ class NominalNMPC(Controller):
 
     # --- the track constraint's geometry, precomputed along the reference line ----------------
     def _prepare_track_lookup(self) -> None:
+        """Each reference point's nearest centre-line point and the centre line's normal there.
+        All points are projected on the whole centre line at once; should the nearest point
+        jump along the centre line between consecutive reference points (a stretch of track
+        passing near another), they are projected one by one instead, each within 0.5 m of the
+        last."""
         path, centre = self.line.path, self.track.center
-        s_hint = None
-        points, normals = [], []
-        for x, y in zip(path.x, path.y, strict=True):
-            proj = centre.project(x, y, s_hint, 0.5 if s_hint is not None else None)
-            s_hint = proj.s
-            heading = float(centre.heading(proj.s))
-            points.append((proj.x, proj.y))
-            normals.append((-np.sin(heading), np.cos(heading)))
-        self._centre = np.array(points)
-        self._normal = np.array(normals)
+        s, points = centre.project_many(path.x, path.y)
+        half = centre.length / 2
+        if np.max(np.abs((np.diff(np.append(s, s[0])) + half) % centre.length - half)) > 0.5:
+            s_hint, rows = None, []
+            for x, y in zip(path.x, path.y, strict=True):
+                proj = centre.project(x, y, s_hint, 0.5 if s_hint is not None else None)
+                s_hint = proj.s
+                rows.append((proj.s, proj.x, proj.y))
+            s, points = np.array(rows)[:, 0], np.array(rows)[:, 1:]
+        heading = centre.heading(s)
+        self._centre = points
+        self._normal = np.column_stack([-np.sin(heading), np.cos(heading)])
 
     def _track_geometry(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         idx = (
@@ -170,14 +177,14 @@ class NominalNMPC(Controller):
         two on the multiple-shooting NLP."""
         s, name = self.settings, str(self.settings["solver"])
         compile_settings = s.get("compile")
-        self.rescue: MultipleShootingNLP | None = None
+        self._rescue: MultipleShootingNLP | None = None
+        self.rescue_with: str | None = None
         if name == "sqp":
             self.backend: Any = CondensedSQP(
                 "ocp", self.horizon, N_STATE, self.n_param, self.layout, self.model_step,
                 self.stage_terms, self.limits, self.ts, {**s["sqp"], "compile": compile_settings},
             )  # fmt: skip
-            if s["sqp"].get("rescue") == "ipopt":
-                self.rescue = self._multiple_shooting("ipopt")
+            self.rescue_with = s["sqp"].get("rescue")
         elif name in ("ipopt", "sqpmethod"):
             self.backend = self._multiple_shooting(name)
         else:
@@ -185,6 +192,13 @@ class NominalNMPC(Controller):
                 f"controllers.{self.name}.solver: {name!r} is not one of sqp, ipopt, sqpmethod"
             )
         self.library = self.backend.library
+
+    @property
+    def rescue(self) -> MultipleShootingNLP | None:
+        """The rescue solver, built the first time it is needed (most runs never need it)."""
+        if self._rescue is None and self.rescue_with is not None:
+            self._rescue = self._multiple_shooting(self.rescue_with)
+        return self._rescue
 
     def _multiple_shooting(self, name: str) -> MultipleShootingNLP:
         s = self.settings
@@ -250,12 +264,14 @@ class NominalNMPC(Controller):
         the same problem from the SQP's last iterate (its states rolled out), and its solution
         becomes the SQP's next warm start."""
         plan, ok = self.backend.solve(x0, params, throttle)
-        if ok or self.rescue is None:
+        if ok or self.rescue_with is None:
             return plan, ok
         self.rescues += 1
         inputs, slacks = self.backend.iterate()
-        guess = self.rescue.decision_vector(self.backend.states(), inputs, slacks)
-        plan, ok = self.rescue.solve(x0, params, throttle, guess=guess)
+        rescue = self.rescue
+        assert rescue is not None
+        guess = rescue.decision_vector(self.backend.states(), inputs, slacks)
+        plan, ok = rescue.solve(x0, params, throttle, guess=guess)
         if ok:
             plan = self.backend.adopt(plan)
         return plan, ok

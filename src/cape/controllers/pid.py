@@ -46,8 +46,8 @@ class PIDController(Controller):
             proj = self.line.project(x, y, proj.s)
         ahead = self.lookahead_distance + self.lookahead_time * max(float(z[3]), 0.0)
         s_ahead = proj.s + ahead
-        x_ref, y_ref = self.line.path.position(s_ahead)
-        psi_ref = float(self.line.path.heading(s_ahead))
+        x_ref, y_ref = self.line.path.position_at(s_ahead)
+        psi_ref = self.line.path.heading_at(s_ahead)
         e_cte = cross_track_error(x, y, float(x_ref), float(y_ref), psi_ref)
         e_psi = wrap_angle(psi_ref - psi)
         e_vx = float(ref.speed[0]) - z[3]

@@ -56,7 +56,7 @@ class RISEController(Controller):
         x, y, psi = preview_pose(z, self.preview)
         if self.preview:
             proj = self.line.project(x, y, proj.s)
-        psi_ref = float(self.line.path.heading(proj.s))
+        psi_ref = self.line.path.heading_at(proj.s)
         e1 = cross_track_error(x, y, proj.x, proj.y, psi_ref)
         d_psi = psi - psi_ref
         e1_dot = z[3] * math.sin(d_psi) + z[4] * math.cos(d_psi)

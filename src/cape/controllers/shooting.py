@@ -14,7 +14,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from cape.controllers.compiled import make_nlpsol
+from cape.compiled import make_nlpsol
 from cape.controllers.sqp import SolveStats
 
 N_INPUT = 2

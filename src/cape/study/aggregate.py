@@ -48,26 +48,28 @@ METRICS = [
 ]
 
 
-def read_run(metrics_path: Path) -> dict:
-    """One row: the run's metrics, its timing, and its study (from the folder)."""
+def read_run(metrics_path: Path, study: str) -> dict:
+    """One row of ``study``: the run's metrics and its timing (a run shared by two studies is
+    read once per study)."""
     try:
         metrics = json.loads(metrics_path.read_text())
     except (OSError, json.JSONDecodeError) as exc:
         raise CapeError(f"{metrics_path}: unreadable run metrics ({exc}); rerun that run") from None
     timing_path = metrics_path.with_name("timing.json")
     timing = json.loads(timing_path.read_text()) if timing_path.is_file() else {}
-    row = {"study": metrics_path.parents[5].name, **metrics, **timing}
+    timing = {k: v for k, v in timing.items() if k.startswith("solve_ms")}
+    row = {**metrics, **timing, "study": study, "folder": str(metrics_path.parent)}
     row["eta_label"] = str(row["eta"])
     row["eta"] = float(row["eta"])
     row.setdefault("fallbacks", 0)
     return row
 
 
-def collect_runs(paths: Iterable[Path], studies: Mapping[str, Any]) -> pd.DataFrame:
-    """The tidy table of the given runs, sorted by its keys. ``model`` names the model a run is
-    about: the internal model in a study that varies it (the ground-truth study), else the
-    plant's; ``studies`` is the config's ``study.studies``."""
-    rows = [read_run(Path(p)) for p in paths]
+def collect_runs(runs: Iterable[tuple[str, Path]], studies: Mapping[str, Any]) -> pd.DataFrame:
+    """The tidy table of the given runs ((study, metrics.json) pairs), sorted by its keys.
+    ``model`` names the model a run is about: the internal model in a study that varies it (the
+    ground-truth study), else the plant's; ``studies`` is the config's ``study.studies``."""
+    rows = [read_run(Path(path), study) for study, path in runs]
     if not rows:
         raise CapeError("no runs to aggregate")
     frame = pd.DataFrame(rows)

@@ -13,6 +13,7 @@ import pandas as pd
 
 from cape.config import config_from_args
 from cape.plots.style import save_figure
+from cape.study.grid import RunId
 from cape.tables import write_table
 
 
@@ -33,11 +34,13 @@ def controller_labels(config: Mapping[str, Any]) -> dict[str, str]:
 
 
 def run_dir(root: str | Path, row: Mapping[str, Any]) -> Path:
-    """The folder of the run described by ``row`` (study, plant, internal, controller, η, seed)."""
-    return (
-        Path(root) / str(row["study"]) / str(row["plant"]) / str(row["internal"])
-        / str(row["controller"]) / f"eta{row['eta_label']}" / f"seed{row['seed']}"
-    )  # fmt: skip
+    """The folder of the run described by ``row`` of runs.parquet: where it was computed (a run
+    two studies share lives in one of their folders), else the one its identity names."""
+    if "folder" in row and isinstance(row["folder"], str):
+        return Path(row["folder"])
+    run = RunId(str(row["study"]), str(row["plant"]), str(row["internal"]),
+                str(row["controller"]), str(row["eta_label"]), int(row["seed"]))  # fmt: skip
+    return run.folder(root)
 
 
 def series_of(root: str | Path, runs: pd.DataFrame) -> dict[tuple[str, str], pd.DataFrame]:

@@ -9,6 +9,7 @@ smooth where a controller needs derivatives.
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,6 +70,25 @@ class PeriodicCubicSpline:
         self._b = slope - h * (2.0 * m + m_next) / 6.0
         self._c = 0.5 * m
         self._d = (m_next - m) / (6.0 * h)
+        # the same numbers as Python lists, for one point at a time (the closed loop's case,
+        # where NumPy's per-call cost is most of the evaluation)
+        self._lists = (t.tolist(), self._a.tolist(), self._b.tolist(), self._c.tolist(),
+                       self._d.tolist())  # fmt: skip
+
+    def at(self, s: float, nu: int = 0) -> float:
+        """``self(s, nu)`` for one float ``s``, in plain Python with the same arithmetic (so
+        the same bits) and a tenth of the cost."""
+        knots, a, b, c, d = self._lists
+        s = knots[0] + (s - knots[0]) % self.period  # Python's % is NumPy's mod, bit for bit
+        i = min(max(bisect_right(knots, s) - 1, 0), len(a) - 1)
+        dt = s - knots[i]
+        if nu == 0:
+            return a[i] + dt * (b[i] + dt * (c[i] + dt * d[i]))
+        if nu == 1:
+            return b[i] + dt * (2.0 * c[i] + dt * 3.0 * d[i])
+        if nu == 2:
+            return 2.0 * c[i] + 6.0 * d[i] * dt
+        raise ValueError(f"derivative order {nu} not supported (0, 1 or 2)")
 
     def __call__(self, s: np.ndarray | float, nu: int = 0) -> np.ndarray:
         """The spline (``nu`` = 0) or its first or second derivative at ``s`` (wrapped)."""
@@ -142,6 +162,10 @@ class ClosedPath:
         if np.any(self.segment_lengths == 0.0):
             raise ValueError("a closed path must not repeat a point (zero-length segment)")
         self.s_points = np.concatenate([[0.0], np.cumsum(self.segment_lengths)[:-1]])
+        # every segment's numbers in one array, rows: start x, y, direction x, y, squared
+        # length, end x, y, length (a projection gathers its candidates once)
+        self._segments = np.vstack([x, y, self._dx, self._dy, self._len2, self._x_next,
+                                    self._y_next, self.segment_lengths])  # fmt: skip
         self.length = float(self.segment_lengths.sum())
         knots = np.append(self.s_points, self.length)
         self._sx = PeriodicCubicSpline(knots, x)
@@ -156,14 +180,34 @@ class ClosedPath:
 
     # --- projection -------------------------------------------------------------------
     def _candidates(self, s_hint: float | None, window: float | None) -> np.ndarray:
+        """Indices (ascending) of the segments meeting [s_hint − window, s_hint + window]. The
+        segments are ordered by arc length, so two binary searches bound them; the exact test
+        (a segment whose start lies in the window, or that reaches into it) is then applied to
+        those and one neighbour on each side only, not to every segment of the path."""
         n = len(self)
         if s_hint is None or window is None or 2 * window >= self.length:
             return np.arange(n)
-        # segments whose span [s_i, s_i + len_i] meets [s_hint − window, s_hint + window]
-        rel_start = np.mod(self.s_points - (s_hint - window), self.length)
-        rel_end = rel_start + self.segment_lengths
-        hit = (rel_start <= 2 * window) | (rel_end >= self.length)
-        return np.flatnonzero(hit)
+        low = s_hint - window
+        start = low % self.length
+        first = int(np.searchsorted(self.s_points, start, side="right")) - 2
+        end = start + 2 * window
+        if end <= self.length:
+            last = int(np.searchsorted(self.s_points, end)) + 1
+        else:
+            last = n + int(np.searchsorted(self.s_points, end - self.length)) + 1
+        if first < 0 or last > n:  # the range wraps round the loop's start: two ranges
+            near = np.concatenate(
+                [
+                    np.arange(0, last - n if last > n else last),
+                    np.arange(first % n if first < 0 else first, n),
+                ]
+            )
+            near = np.unique(near)
+        else:
+            near = np.arange(first, last)
+        rel_start = np.mod(self.s_points[near] - low, self.length)
+        hit = (rel_start <= 2 * window) | (rel_start + self.segment_lengths[near] >= self.length)
+        return near[hit]
 
     def project(
         self, px: float, py: float, s_hint: float | None = None, window: float | None = None
@@ -175,10 +219,7 @@ class ClosedPath:
         Ties go to the lowest segment index.
         """
         idx = self._candidates(s_hint, window)
-        ax, ay = self.x[idx], self.y[idx]
-        dx, dy, seg_len = self._dx[idx], self._dy[idx], self.segment_lengths[idx]
-        len2 = self._len2[idx]
-        bx, by = self._x_next[idx], self._y_next[idx]
+        ax, ay, dx, dy, len2, bx, by, seg_len = self._segments[:, idx]  # one gather
         t = np.clip(((px - ax) * dx + (py - ay) * dy) / len2, 0.0, 1.0)
         # End points exactly (a + 1·(b − a) can miss b by an ulp), so that the two segments
         # meeting at a vertex tie exactly and the lower index wins (SPEC §3, step 1).
@@ -194,11 +235,36 @@ class ClosedPath:
             s=s, offset=side * float(dist[k]), segment=i, x=float(qx[k]), y=float(qy[k])
         )
 
+    def project_many(self, px: np.ndarray, py: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The nearest points of the whole path to many points at once (no window): their arc
+        lengths ``s`` and the points themselves (n × 2), with ``project``'s arithmetic and tie
+        rule, so each row equals ``project(px[i], py[i])``."""
+        px, py = np.asarray(px, dtype=float)[:, None], np.asarray(py, dtype=float)[:, None]
+        ax, ay, dx, dy = self.x, self.y, self._dx, self._dy
+        t = np.clip(((px - ax) * dx + (py - ay) * dy) / self._len2, 0.0, 1.0)
+        qx = np.where(t <= 0.0, ax, np.where(t >= 1.0, self._x_next, ax + t * dx))
+        qy = np.where(t <= 0.0, ay, np.where(t >= 1.0, self._y_next, ay + t * dy))
+        k = np.argmin(np.hypot(px - qx, py - qy), axis=1)
+        rows = np.arange(k.size)
+        s = np.mod(self.s_points[k] + t[rows, k] * self.segment_lengths[k], self.length)
+        return s, np.column_stack([qx[rows, k], qy[rows, k]])
+
     # --- smooth evaluation ------------------------------------------------------------------
     def position(self, s: np.ndarray | float) -> np.ndarray:
         """Points ``[x, y]`` at arc length ``s`` (wrapped), shape (2,) or (2, n)."""
         s = self.wrap(np.asarray(s, dtype=float))
         return np.stack([self._sx(s), self._sy(s)])
+
+    def position_at(self, s: float) -> tuple[float, float]:
+        """``position(s)`` for one float ``s`` (the same numbers, in plain Python)."""
+        s = float(s) % self.length
+        return self._sx.at(s), self._sy.at(s)
+
+    def heading_at(self, s: float) -> float:
+        """``heading(s)`` for one float ``s`` (the same numbers; NumPy's arctan2, whose last
+        bit math.atan2 does not always match)."""
+        s = float(s) % self.length
+        return float(np.arctan2(self._sy.at(s, 1), self._sx.at(s, 1)))
 
     def heading(self, s: np.ndarray | float) -> np.ndarray:
         """Tangent direction (rad) at arc length ``s``."""

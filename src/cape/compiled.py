@@ -50,17 +50,44 @@ def make_nlpsol(
     return ca.nlpsol(name, plugin, str(library), opts), library
 
 
-def compiled_functions(
-    name: str, functions: dict[str, ca.Function], compile_settings: dict[str, Any]
-) -> tuple[dict[str, ca.Function], Path | None]:
-    """The same functions, loaded from one cached compiled library (built when missing), and
-    that library; unchanged, with None, when the compiler is missing."""
+def cached_functions(
+    names: dict[str, str], fingerprint: str, compile_settings: dict[str, Any]
+) -> tuple[dict[str, ca.Function], Path] | None:
+    """The functions ``names`` (key → function name) from the cached library of a problem with
+    ``fingerprint`` (a digest of everything its generated code depends on), or None when that
+    library is not cached yet. Loading skips building the functions' expressions, which costs
+    a second or more."""
+    library = _fingerprinted(fingerprint, compile_settings)
+    if library is None or not library.is_file():
+        return None
+    return {key: ca.external(name, str(library)) for key, name in names.items()}, library
+
+
+def _fingerprinted(fingerprint: str, compile_settings: dict[str, Any]) -> Path | None:
     compiler = str(compile_settings.get("compiler", "gcc"))
     if shutil.which(compiler) is None:
+        return None
+    flags = [str(f) for f in compile_settings.get("flags", ["-O1"])]
+    cache = Path(str(compile_settings.get("cache", "results/solvers")))
+    key = hashlib.sha256(" ".join([fingerprint, ca.__version__, compiler, *flags]).encode())
+    return cache / f"condensed_{key.hexdigest()[:16]}.so"
+
+
+def compiled_functions(
+    name: str,
+    functions: dict[str, ca.Function],
+    compile_settings: dict[str, Any],
+    fingerprint: str,
+) -> tuple[dict[str, ca.Function], Path | None]:
+    """The same functions, loaded from one compiled library cached under ``fingerprint``
+    (compiled now when missing), and that library; unchanged, with None, when the compiler is
+    missing."""
+    compiler = str(compile_settings.get("compiler", "gcc"))
+    library = _fingerprinted(fingerprint, compile_settings)
+    if library is None:
         _warn_once(f"compiler {compiler!r} not found; the solver's functions run uncompiled")
         return functions, None
     flags = [str(f) for f in compile_settings.get("flags", ["-O1"])]
-    cache = Path(str(compile_settings.get("cache", "results/solvers")))
 
     def generate(directory: Path) -> Path:
         gen = ca.CodeGenerator(f"{name}.c", {"with_header": False})
@@ -74,9 +101,8 @@ def compiled_functions(
             os.chdir(here)
         return directory / f"{name}.c"
 
-    library = _compiled(generate, "condensed", cache, compiler, flags)
-    loaded = {key: ca.external(f.name(), str(library)) for key, f in functions.items()}
-    return loaded, library
+    _compile(generate, library, compiler, flags)
+    return {key: ca.external(f.name(), str(library)) for key, f in functions.items()}, library
 
 
 def compiled_library(
@@ -94,9 +120,17 @@ def _compiled(generate: Any, prefix: str, cache: Path, compiler: str, flags: lis
         text = source.read_bytes()
         key = hashlib.sha256(text + " ".join([compiler, *flags]).encode()).hexdigest()[:16]
         library = cache / f"{prefix}_{key}.so"
-        if library.is_file():
-            return library
-        cache.mkdir(parents=True, exist_ok=True)
+        if not library.is_file():
+            _compile(lambda _: source, library, compiler, flags)
+    return library
+
+
+def _compile(generate: Any, library: Path, compiler: str, flags: list[str]) -> None:
+    """Generate C source with ``generate(folder)`` and compile it into ``library`` (temp file,
+    then rename: concurrent jobs never see half a library)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        source = generate(Path(tmp))
+        library.parent.mkdir(parents=True, exist_ok=True)
         partial = Path(tmp) / library.name
         cmd = [compiler, *flags, "-fPIC", "-shared", str(source), "-o", str(partial)]
         done = subprocess.run(cmd, capture_output=True, text=True, check=False)
@@ -109,7 +143,6 @@ def _compiled(generate: Any, prefix: str, cache: Path, compiler: str, flags: lis
         staged = library.with_suffix(f".{os.getpid()}.tmp")
         shutil.copyfile(partial, staged)
         os.replace(staged, library)
-    return library
 
 
 def _generate(solver: ca.Function, directory: Path) -> Path:

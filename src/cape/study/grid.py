@@ -1,0 +1,84 @@
+"""A run's identity and the study grid (SPEC §8): the one place a run's folder is spelled.
+
+A run is (study, plant, internal model, controller, η, seed); its files live in
+``<root>/<study>/<plant>/<internal>/<controller>/eta<η>/seed<s>/``. The workflow's targets, the
+aggregation and the notebooks all go through ``RunId``, and the grid of a config is enumerated
+once, by ``study_runs``.
+
+A run's result depends on its plant, internal model, controller, η and seed (and the config),
+never on the study that asks for it. So when two studies ask for the same run (the ablation's
+diagonal, internal = plant, repeats runs of the learned study), it is computed once, in the
+folder of the first study of the config that has it (``canonical``), and both studies read it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+RUNS_ROOT = "results/runs"
+
+
+@dataclass(frozen=True)
+class RunId:
+    """One closed-loop run of a study. ``eta`` is the grid's label (it names a folder)."""
+
+    study: str
+    plant: str
+    internal: str
+    controller: str
+    eta: str
+    seed: int
+
+    def folder(self, root: str | Path = RUNS_ROOT) -> Path:
+        """The run's folder under ``root``."""
+        return (
+            Path(root) / self.study / self.plant / self.internal / self.controller
+            / f"eta{self.eta}" / f"seed{self.seed}"
+        )  # fmt: skip
+
+    @classmethod
+    def parse(cls, path: str | Path) -> RunId:
+        """The run whose folder (or a file in it) is ``path``."""
+        path = Path(path)
+        if path.name.startswith("seed") is False:
+            path = path.parent
+        parts = path.parts[-6:]
+        if len(parts) != 6 or not parts[4].startswith("eta") or not parts[5].startswith("seed"):
+            raise ValueError(f"{path}: not a run folder (…/<study>/<plant>/<internal>/"
+                             "<controller>/eta<η>/seed<s>)")  # fmt: skip
+        study, plant, internal, controller, eta, seed = parts
+        return cls(study, plant, internal, controller, eta[3:], int(seed[4:]))
+
+    def same_run(self) -> tuple[str, str, str, str, int]:
+        """What the run's result depends on: everything but the study."""
+        return (self.plant, self.internal, self.controller, self.eta, self.seed)
+
+
+def study_runs(
+    study_config: Mapping[str, Any], etas: list[str], uses_internal: Callable[[str], bool]
+) -> list[RunId]:
+    """Every run of every study of the config's ``study`` section, in the config's order.
+    A controller with an internal model crosses the study's ``internal`` list (default: the
+    plant's own model); one without (PID, RISE) runs once per plant, named after the plant."""
+    runs = []
+    seeds = range(int(study_config["seeds"]))
+    for study, grid in study_config["studies"].items():
+        for plant in grid["plants"]:
+            for controller in grid["controllers"]:
+                own = [plant]
+                internals = (grid.get("internal") or own) if uses_internal(controller) else own
+                for internal in internals:
+                    for eta in grid.get("eta", etas):
+                        for seed in seeds:
+                            runs.append(RunId(study, plant, internal, controller, eta, seed))
+    return runs
+
+
+def canonical(runs: list[RunId]) -> dict[RunId, RunId]:
+    """Each run → the run that computes it: the first of ``runs`` with the same plant,
+    internal model, controller, η and seed."""
+    first: dict[tuple[str, str, str, str, int], RunId] = {}
+    return {run: first.setdefault(run.same_run(), run) for run in runs}
