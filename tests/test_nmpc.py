@@ -13,6 +13,7 @@ import pytest
 from cape.closedloop.internal import N_STATE
 from cape.closedloop.rollout import initial_state
 from cape.closedloop.setup import build_internal, build_run
+from cape.integrity import sealed_arrays
 
 
 @pytest.fixture(scope="session")
@@ -37,7 +38,7 @@ def cfg(config, track_dir, tmp_path: Path, solver_cache: Path):
         GROUND_TRUTH,
         ACTUATOR_LIMITS,
     )
-    np.savez(tmp_path / "line.npz", x=rl.x, y=rl.y, speed=rl.speed)
+    np.savez(tmp_path / "line.npz", **sealed_arrays({"x": rl.x, "y": rl.y, "speed": rl.speed}))
     cfg["_raceline"] = str(tmp_path / "line.npz")
     return cfg
 

@@ -17,6 +17,7 @@ from cape.closedloop.reference import ReferenceLine
 from cape.closedloop.rollout import initial_state, run_lap
 from cape.controllers import controller_class
 from cape.controllers.base import Controller
+from cape.integrity import sealed_arrays
 from cape.tracks.raceline import build_raceline
 from cape.tracks.track import load_track
 from cape.vehicle import ACTUATOR_LIMITS, GROUND_TRUTH
@@ -201,7 +202,7 @@ def test_cli_rollout_is_byte_identical_when_repeated(
         GROUND_TRUTH,
         ACTUATOR_LIMITS,
     )
-    np.savez(raceline, x=rl.x, y=rl.y, speed=rl.speed)
+    np.savez(raceline, **sealed_arrays({"x": rl.x, "y": rl.y, "speed": rl.speed}))
     outs = []
     for i in range(2):
         out = tmp_path / f"run{i}"
@@ -277,7 +278,8 @@ def test_plot_rollout(tmp_path: Path, track_dir: Path, config, setting) -> None:
     meta = {"plant": "truth", "controller": "rise", "internal": "truth", "eta": "0", "seed": 0}
     (run / "metrics.json").write_text(json.dumps({**meta, **result.metrics}))
     line = tmp_path / "line.npz"
-    np.savez(line, x=setting[1].path.x, y=setting[1].path.y, speed=setting[1].v_path)
+    path = setting[1].path
+    np.savez(line, **sealed_arrays({"x": path.x, "y": path.y, "speed": setting[1].v_path}))
     cfg = {k: config[k] for k in ("tracks", "data", "reference")}
     cfg = json.loads(json.dumps(cfg))
     cfg["tracks"]["dir"] = str(track_dir)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 from pathlib import Path
@@ -120,8 +121,12 @@ def test_corrupt_or_mismatched_checkpoints_fail_clearly(config, small_data, tmp_
     meta["spec"]["head"]["width"] = 436
     (tmp_path / "meta.json").write_text(json.dumps(meta))
     (tmp_path / "model.pt").write_bytes(b"this is not a checkpoint")
+    with pytest.raises(CapeError, match=r"model.pt: does not match the checksum .* train it"):
+        load_model(tmp_path)  # caught by the checksum of meta.json, before torch reads it
+    meta["weights_sha256"] = hashlib.sha256(b"this is not a checkpoint").hexdigest()
+    (tmp_path / "meta.json").write_text(json.dumps(meta))
     with pytest.raises(CapeError, match=r"model.pt: not a readable checkpoint"):
-        load_model(tmp_path)
+        load_model(tmp_path)  # a file damaged before its checksum was taken: torch's error
     (tmp_path / "meta.json").write_text("{broken")
     with pytest.raises(CapeError, match=r"meta\.json: corrupt"):
         load_model(tmp_path)

@@ -136,6 +136,7 @@ def cmd_raceline(args: argparse.Namespace) -> None:
     import numpy as np
 
     from cape.config import section
+    from cape.integrity import sealed_arrays
     from cape.io import save_npz
     from cape.plots.style import save_figure
     from cape.plots.tracks import plot_raceline
@@ -159,13 +160,15 @@ def cmd_raceline(args: argparse.Namespace) -> None:
     ideal = float(np.sum(path.segment_lengths / scaled))
     save_npz(
         args.out,
-        x=line.x,
-        y=line.y,
-        speed=line.speed,
-        s=path.s_points,
-        heading=path.heading(path.s_points),
-        curvature=path.curvature(path.s_points),
-    )
+        **sealed_arrays({
+            "x": line.x,
+            "y": line.y,
+            "speed": line.speed,
+            "s": path.s_points,
+            "heading": path.heading(path.s_points),
+            "curvature": path.curvature(path.s_points),
+        }),
+    )  # fmt: skip
     title = (
         f"{args.track}: CAPE raceline {path.length:.2f} m; ideal lap {lap_time(line):.2f} s at "
         f"v_path,\n{ideal:.2f} s at the reference speed (scale {settings['scale']}, "
@@ -218,13 +221,13 @@ def cmd_rollout(args: argparse.Namespace) -> None:
     import numpy as np
 
     from cape.closedloop.setup import build_run
-    from cape.io import save_float_columns, write_text
+    from cape.config import check_eta
+    from cape.io import atomic_folder, save_float_columns, write_text
 
     config = _config(args)
-    try:
-        eta = float(args.eta)
-    except ValueError:
-        raise CapeError(f"--eta {args.eta!r}: not a number") from None
+    eta = check_eta(args.eta, "--eta")
+    if args.seed < 0:
+        raise CapeError(f"--seed {args.seed}: a seed is a non-negative integer")
     started = time.perf_counter()
     run = build_run(
         config,
@@ -235,6 +238,7 @@ def cmd_rollout(args: argparse.Namespace) -> None:
         args.internal,
         Path(args.models_dir),
         args.raceline,
+        validate=args.config_json is None,
     )
     built = time.perf_counter()
     result = run()
@@ -254,18 +258,20 @@ def cmd_rollout(args: argparse.Namespace) -> None:
         f"solve_ms_{name}": float(np.percentile(ms, q)) if ms.size else None
         for name, q in (("median", 50), ("p90", 90), ("p99", 99), ("max", 100))
     }
-    save_float_columns(out / "timeseries.parquet", result.series)
-    # the job's wall time by phase (s): start-up (interpreter, imports, arguments), building the
-    # run (models, solver), the lap, writing; timing.json is written last
-    timing["job_s"] = {
-        "startup": round(started - STARTED, 4),
-        "build": round(built - started, 4),
-        "lap": round(lapped - built, 4),
-        "steps": int(metrics["steps"]),
-    }
-    write_text(out / "metrics.json", json.dumps(metrics, indent=2, sort_keys=True) + "\n")
-    timing["job_s"]["write"] = round(time.perf_counter() - lapped, 4)
-    write_text(out / "timing.json", json.dumps(timing, indent=2, sort_keys=True) + "\n")
+    # the run's three files appear together or not at all (one folder rename)
+    with atomic_folder(out) as folder:
+        save_float_columns(folder / "timeseries.parquet", result.series)
+        write_text(folder / "metrics.json", json.dumps(metrics, indent=2, sort_keys=True) + "\n")
+        # the job's wall time by phase (s): start-up (interpreter, imports, arguments), building
+        # the run (models, solver), the lap, writing
+        timing["job_s"] = {
+            "startup": round(started - STARTED, 4),
+            "build": round(built - started, 4),
+            "lap": round(lapped - built, 4),
+            "steps": int(metrics["steps"]),
+            "write": round(time.perf_counter() - lapped, 4),
+        }
+        write_text(folder / "timing.json", json.dumps(timing, indent=2, sort_keys=True) + "\n")
     status = "lap" if metrics["success"] else f"failed ({metrics['failure']})"
     run_name = f"{args.plant}/{args.controller} η={args.eta} seed={args.seed}"
     print(f"{run_name}: {status}, lap time {metrics['lap_time']}")
@@ -443,6 +449,7 @@ def cmd_freeze(args: argparse.Namespace) -> None:
     import json
 
     from cape.config import section
+    from cape.integrity import sealed_record
     from cape.io import write_text
     from cape.models.evaluate import frozen_parameters
     from cape.models.training import TrainingData
@@ -454,11 +461,11 @@ def cmd_freeze(args: argparse.Namespace) -> None:
         _load_npz(args.data), model.history, float(split["train_fraction"]), int(split["seed"])
     )
     frozen = frozen_parameters(model, data.train)
-    payload = {
+    payload = sealed_record({
         "model": name,
         "source": "median of Φ over the ETHZ training windows (SPEC §4.5)",
         "phi": frozen,
-    }
+    })  # fmt: skip
     write_text(args.out, json.dumps(payload, indent=2) + "\n")
     print(f"wrote {args.out}: " + ", ".join(f"{k}={v:.4g}" for k, v in frozen.items()))
 

@@ -23,6 +23,8 @@ from typing import Any
 import casadi as ca
 
 from cape.errors import CapeError
+from cape.integrity import check_sidecar, file_digest, sidecar
+from cape.io import write_text
 
 _warned = False
 
@@ -60,7 +62,14 @@ def cached_functions(
     library = _fingerprinted(fingerprint, compile_settings)
     if library is None or not library.is_file():
         return None
+    verify_library(library)
     return {key: ca.external(name, str(library)) for key, name in names.items()}, library
+
+
+def verify_library(library: Path) -> None:
+    """Raise ``CapeError`` unless a cached library matches the checksum written beside it when
+    it was compiled: loading a damaged native library would crash the process."""
+    check_sidecar(library, f"delete {library} (and its .sha256); the next run rebuilds it")
 
 
 def _fingerprinted(fingerprint: str, compile_settings: dict[str, Any]) -> Path | None:
@@ -101,7 +110,10 @@ def compiled_functions(
             os.chdir(here)
         return directory / f"{name}.c"
 
-    _compile(generate, library, compiler, flags)
+    if library.is_file():  # compiled meanwhile by a concurrent job
+        verify_library(library)
+    else:
+        _compile(generate, library, compiler, flags)
     return {key: ca.external(f.name(), str(library)) for key, f in functions.items()}, library
 
 
@@ -120,7 +132,9 @@ def _compiled(generate: Any, prefix: str, cache: Path, compiler: str, flags: lis
         text = source.read_bytes()
         key = hashlib.sha256(text + " ".join([compiler, *flags]).encode()).hexdigest()[:16]
         library = cache / f"{prefix}_{key}.so"
-        if not library.is_file():
+        if library.is_file():
+            verify_library(library)
+        else:
             _compile(lambda _: source, library, compiler, flags)
     return library
 
@@ -139,9 +153,11 @@ def _compile(generate: Any, library: Path, compiler: str, flags: list[str]) -> N
                 f"compiling the NLP with `{' '.join(cmd)}` failed:\n{done.stderr.strip()}\n"
                 "Set the controller's `compile.enabled: false` to run without a compiler."
             )
-        # copy beside the target, then rename: atomic on the cache's file system
+        # copy beside the target, then rename: atomic on the cache's file system; the checksum
+        # first, so that a library without one is never mistaken for a complete one
         staged = library.with_suffix(f".{os.getpid()}.tmp")
         shutil.copyfile(partial, staged)
+        write_text(sidecar(library), file_digest(staged) + "\n")
         os.replace(staged, library)
 
 

@@ -62,6 +62,52 @@ def check_consistency(config: dict[str, Any], source: str = "config") -> None:
                 f"{source}: field `data.{key}` is {data[key]!r}, which is not one of "
                 f"`data.tracks` ({sorted(data['tracks'])}); choose one of those."
             )
+    if "disturbances" in config:
+        for i, label in enumerate(config["disturbances"]["eta"]):
+            check_eta(label, f"{source}: field `disturbances.eta[{i}]`")
+    if "study" in config:
+        _check_grid(config, source)
+
+
+ETA_RANGE = (0.0, 5.0)
+"""η runs from 0 to 5 (SPEC §6)."""
+
+
+def check_eta(value: Any, where: str) -> float:
+    """η as a float, or ``CapeError`` when it is not a finite number within ``ETA_RANGE``."""
+    try:
+        eta = float(value)
+    except (TypeError, ValueError):
+        raise CapeError(f"{where}: η {value!r} is not a number; give one in [0, 5]") from None
+    low, high = ETA_RANGE
+    if not low <= eta <= high:  # also false for NaN
+        raise CapeError(f"{where}: η {value!r} is outside [{low:g}, {high:g}] (SPEC §6)")
+    return eta
+
+
+def plant_names(config: dict[str, Any]) -> list[str]:
+    """Every plant (and internal model) name: the ground truth, each model, its fixed variant."""
+    models = list(config.get("models", {}))
+    return ["truth", *models, *(f"{m}-fixed" for m in models)]
+
+
+def _check_grid(config: dict[str, Any], source: str) -> None:
+    """Every name of the study grid must exist in the config: an unknown one is an error here,
+    not a study that silently lacks it (or reuses stale results)."""
+    plants = plant_names(config)
+    controllers = list(config.get("controllers", {}))
+    for study, grid in config["study"]["studies"].items():
+        where = f"study.studies.{study}"
+        for key, known in (("plants", plants), ("internal", plants),
+                           ("controllers", controllers)):  # fmt: skip
+            for name in grid.get(key, []) or []:
+                if name not in known:
+                    raise CapeError(
+                        f"{source}: field `{where}.{key}` names {name!r}, which the config does "
+                        f"not define; use one of {', '.join(known)} (or add it to the config)"
+                    )
+        for i, label in enumerate(grid.get("eta", [])):
+            check_eta(label, f"{source}: field `{where}.eta[{i}]`")
 
 
 def _jsonschema() -> Any:

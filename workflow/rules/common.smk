@@ -2,17 +2,28 @@
 
 import json
 import os
+import sys
 
 from snakemake.utils import validate
 
 from cape.config import check_consistency
 from cape.controllers import controller_class
+from cape.controllers.base import validate_settings
+from cape.locks import clear_stale_locks
 from cape.study.grid import canonical, study_runs
 from cape.tracks.manifest import BAYESRACE_FILES
 
 
+# Interrupted by SIGKILL, a run leaves its locks: the next one removes them when no other
+# Snakemake process works here, so that the documented command resumes (cape/locks.py).
+for _lock in clear_stale_locks("."):
+    print(f"removed {_lock}, left by an interrupted run; resuming", file=sys.stderr)
+
+SOURCE = "config (config/config.yaml and any --configfile)"
 validate(config, "../schemas/config.schema.yaml")
-check_consistency(config, "config (config/config.yaml and any --configfile)")
+check_consistency(config, SOURCE)
+for _name, _entry in config["controllers"].items():  # each controller's own keys
+    validate_settings(controller_class(_name, _entry), _name, _entry, SOURCE)
 
 # The software environment of every rule for `--sdm conda` (relative to workflow/rules/).
 CAPE_ENV = "../envs/cape.yaml"

@@ -1,6 +1,8 @@
 # The study (SPEC §8–§10): every run aggregated into one table, then the figure notebooks,
 # executed by papermill into results/notebooks/ (with an HTML copy), writing the tables and
-# figures of SPEC §9.
+# figures of SPEC §9. Papermill writes a notebook as it runs, so each is executed under a
+# `.part.ipynb` name and renamed when it and its HTML copy are complete: an interrupted notebook
+# never looks finished.
 
 
 rule aggregate:
@@ -43,9 +45,11 @@ rule notebook_setup:
         "results/logs/notebooks/setup.log",
     localrule: True
     shell:
-        "papermill {input.notebook} {output.notebook} --cwd . --no-progress-bar"
+        "papermill {input.notebook} {output.notebook}.part.ipynb --cwd . --no-progress-bar"
         " -r config_json {params.cfg:q} > {log} 2>&1"
-        " && jupyter nbconvert --to html {output.notebook} --output-dir results/notebooks >> {log} 2>&1"
+        " && jupyter nbconvert --to html {output.notebook}.part.ipynb --output-dir results/notebooks"
+        " --output $(basename {output.html} .html) >> {log} 2>&1"
+        " && mv {output.notebook}.part.ipynb {output.notebook}"  # the notebook last: complete
 
 
 rule notebook_closed_loop:
@@ -77,11 +81,13 @@ rule notebook_closed_loop:
     benchmark:
         "results/benchmarks/notebooks/closed_loop_{study}.tsv"
     shell:
-        "papermill {input.notebook} {output.notebook} --cwd . --no-progress-bar"
+        "papermill {input.notebook} {output.notebook}.part.ipynb --cwd . --no-progress-bar"
         " -r study {wildcards.study} -r config_json {params.cfg:q}"
         " -r figure_dir results/figures/{wildcards.study} -r table_dir results/tables/{wildcards.study}"
         " > {log} 2>&1"
-        " && jupyter nbconvert --to html {output.notebook} --output-dir results/notebooks >> {log} 2>&1"
+        " && jupyter nbconvert --to html {output.notebook}.part.ipynb --output-dir results/notebooks"
+        " --output $(basename {output.html} .html) >> {log} 2>&1"
+        " && mv {output.notebook}.part.ipynb {output.notebook}"  # the notebook last: complete
 
 
 rule notebook_bicycle:
@@ -107,10 +113,12 @@ rule notebook_bicycle:
         "results/logs/notebooks/bicycle.log",
     localrule: True
     shell:
-        "papermill {input.notebook} {output.notebook} --cwd . --no-progress-bar"
+        "papermill {input.notebook} {output.notebook}.part.ipynb --cwd . --no-progress-bar"
         " -r config_json {params.cfg:q} -r figure_dir results/figures/bicycle"
         " -r table_dir results/tables/bicycle > {log} 2>&1"
-        " && jupyter nbconvert --to html {output.notebook} --output-dir results/notebooks >> {log} 2>&1"
+        " && jupyter nbconvert --to html {output.notebook}.part.ipynb --output-dir results/notebooks"
+        " --output $(basename {output.html} .html) >> {log} 2>&1"
+        " && mv {output.notebook}.part.ipynb {output.notebook}"  # the notebook last: complete
 
 
 rule notebook_ablation:
@@ -137,9 +145,11 @@ rule notebook_ablation:
         "results/logs/notebooks/ablation.log",
     localrule: True
     shell:
-        "papermill {input.notebook} {output.notebook} --cwd . --no-progress-bar"
+        "papermill {input.notebook} {output.notebook}.part.ipynb --cwd . --no-progress-bar"
         " -r config_json {params.cfg:q} -r figure_dir results/figures/ablation > {log} 2>&1"
-        " && jupyter nbconvert --to html {output.notebook} --output-dir results/notebooks >> {log} 2>&1"
+        " && jupyter nbconvert --to html {output.notebook}.part.ipynb --output-dir results/notebooks"
+        " --output $(basename {output.html} .html) >> {log} 2>&1"
+        " && mv {output.notebook}.part.ipynb {output.notebook}"  # the notebook last: complete
 
 
 rule notebook_failures:
@@ -165,10 +175,12 @@ rule notebook_failures:
         "results/logs/notebooks/failures_{study}.log",
     localrule: True
     shell:
-        "papermill {input.notebook} {output.notebook} --cwd . --no-progress-bar"
+        "papermill {input.notebook} {output.notebook}.part.ipynb --cwd . --no-progress-bar"
         " -r study {wildcards.study} -r config_json {params.cfg:q}"
         " -r figure_dir results/figures/{wildcards.study} > {log} 2>&1"
-        " && jupyter nbconvert --to html {output.notebook} --output-dir results/notebooks >> {log} 2>&1"
+        " && jupyter nbconvert --to html {output.notebook}.part.ipynb --output-dir results/notebooks"
+        " --output $(basename {output.html} .html) >> {log} 2>&1"
+        " && mv {output.notebook}.part.ipynb {output.notebook}"  # the notebook last: complete
 
 
 rule notebook_scorecard:
@@ -195,9 +207,11 @@ rule notebook_scorecard:
         "results/logs/notebooks/scorecard.log",
     localrule: True
     shell:
-        "papermill {input.notebook} {output.notebook} --cwd . --no-progress-bar"
+        "papermill {input.notebook} {output.notebook}.part.ipynb --cwd . --no-progress-bar"
         " -r config_json {params.cfg:q} > {log} 2>&1"
-        " && jupyter nbconvert --to html {output.notebook} --output-dir results/notebooks >> {log} 2>&1"
+        " && jupyter nbconvert --to html {output.notebook}.part.ipynb --output-dir results/notebooks"
+        " --output $(basename {output.html} .html) >> {log} 2>&1"
+        " && mv {output.notebook}.part.ipynb {output.notebook}"  # the notebook last: complete
 
 
 rule study:

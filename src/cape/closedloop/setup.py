@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import math
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -16,24 +18,28 @@ from cape.closedloop.reference import ReferenceLine
 from cape.closedloop.rollout import RolloutResult, run_lap
 from cape.config import section
 from cape.controllers import controller_class
-from cape.controllers.base import Controller
+from cape.controllers.base import Controller, validate_settings
 from cape.controllers.ekf import NoiseLevels
 from cape.errors import CapeError
+from cape.integrity import check_arrays, check_record
 from cape.models.registry import model_class
 from cape.models.trained import TrainedModel, load_physics, load_trained
 from cape.tracks.track import Track, load_raceline, load_track
 from cape.vehicle.params import ACTUATOR_LIMITS, GROUND_TRUTH
 
 
-def parse_plant(name: str, models: dict[str, Any]) -> tuple[str, str | None]:
-    """``(kind, model)`` of a plant name: ("learned", "epm"), ("fixed", "ddm"), ("truth", None)."""
+def parse_plant(
+    name: str, models: dict[str, Any], option: str = "--plant"
+) -> tuple[str, str | None]:
+    """``(kind, model)`` of a plant (or internal model) name: ("learned", "epm"), ("fixed",
+    "ddm"), ("truth", None); ``option`` is what the error names."""
     if name == "truth":
         return "truth", None
     model, _, suffix = name.partition("-")
     if model in models and suffix in ("", "fixed"):
         return ("fixed" if suffix else "learned"), model
     raise CapeError(
-        f"--plant {name}: expected truth, a model name ({', '.join(models)}) or <model>-fixed"
+        f"{option} {name}: expected truth, a model name ({', '.join(models)}) or <model>-fixed"
     )
 
 
@@ -53,17 +59,34 @@ def load_reference(config: dict[str, Any], raceline: str | None) -> tuple[Refere
             raise CapeError(
                 f"{path}: reference raceline missing; build it with `snakemake --cores 1 {path}`"
             )
-        with np.load(path) as npz:
-            x, y, speed = npz["x"], npz["y"], npz["speed"]
+        fix = f"delete it and rebuild it with `snakemake --cores 1 {path}`"
+        try:
+            with np.load(path, allow_pickle=False) as npz:
+                arrays = {k: npz[k] for k in npz.files}
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            raise CapeError(f"{path}: not a readable raceline ({exc}); {fix}") from None
+        check_arrays(arrays, path, fix)
+        x, y, speed = arrays["x"], arrays["y"], arrays["speed"]
     return ReferenceLine(x, y, speed, settings, ts), track
 
 
 def frozen_phi(models_dir: Path, model_name: str) -> dict[str, float]:
     """The frozen Φ of a trained model (SPEC §4.5), or an error saying how to build it."""
     path = models_dir / model_name / "frozen_phi.json"
+    fix = f"delete it and rebuild it with `snakemake --cores 1 {path}`"
     if not path.is_file():
         raise CapeError(f"{path}: missing; build it with `snakemake --cores 1 {path}`")
-    return json.loads(path.read_text())["phi"]
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise CapeError(f"{path}: not readable JSON ({exc}); {fix}") from None
+    check_record(record, path, fix)
+    phi = record.get("phi")
+    if not isinstance(phi, dict) or not all(
+        isinstance(v, int | float) and math.isfinite(v) for v in phi.values()
+    ):
+        raise CapeError(f"{path}: `phi` is not a mapping of finite numbers; {fix}")
+    return phi
 
 
 def build_internal(
@@ -77,7 +100,7 @@ def build_internal(
     models the caller already read (the plant's), so a network is not loaded twice."""
     models = section(config, "models")
     ts = float(section(config, "data")["ts"])
-    kind, model_name = parse_plant(name, models)
+    kind, model_name = parse_plant(name, models, "--internal")
     if kind == "truth":
         structure = "ddm" if "ddm" in models else next(iter(models))
         physics = model_class(structure, models[structure])(models[structure], ts)
@@ -130,12 +153,17 @@ def build_run(
     internal: str | None,
     models_dir: Path,
     raceline: str | None = None,
+    validate: bool = True,
 ) -> Run:
-    """Everything one run needs, from names; errors name the missing piece and the fix."""
+    """Everything one run needs, from names; errors name the missing piece and the fix.
+    ``validate``: check the controller's settings against its schema (skipped for the config a
+    rule passes, which the workflow validated when it started)."""
     models = section(config, "models")
     controllers = section(config, "controllers")
     ts = float(section(config, "data")["ts"])
     kind, model_name = parse_plant(plant_name, models)
+    if internal is not None:
+        parse_plant(internal, models, "--internal")  # a bad name is an error for any controller
     if controller_name not in controllers:
         known = ", ".join(controllers)
         raise CapeError(
@@ -157,6 +185,8 @@ def build_run(
         physics = load_physics(models_dir / str(model_name), expected_name=model_name)
         plant = FixedParameterPlant(physics, frozen_phi(models_dir, str(model_name)), transform)
     cls = controller_class(controller_name, controllers[controller_name])
+    if validate:  # a rule's config was validated when the workflow started
+        validate_settings(cls, controller_name, controllers[controller_name])
     default_internal = (
         "truth" if kind == "truth" else f"{model_name}{'-fixed' if kind == 'fixed' else ''}"
     )
@@ -183,5 +213,6 @@ def build_run(
         track=track,
         disturbances=disturbances,
         settings=section(config, "rollout"),
-        internal=internal or default_internal,
+        # a controller without an internal model runs on none: its runs are named after the plant
+        internal=(internal or default_internal) if cls.needs_internal_model else default_internal,
     )

@@ -14,7 +14,7 @@ costs one call, not 4·``every`` model steps in Python.
 from __future__ import annotations
 
 from collections import deque
-from typing import Any
+from typing import Any, ClassVar
 
 import casadi as ca
 import numpy as np
@@ -22,13 +22,37 @@ import numpy as np
 from cape.closedloop.internal import N_STATE
 from cape.closedloop.reference import ReferencePoints
 from cape.controllers.base import require
-from cape.controllers.nmpc import NominalNMPC
+from cape.controllers.nmpc import NMPC_SCHEMA, NominalNMPC
 from cape.controllers.registry import register_controller
 from cape.tracks.geometry import Projection
 
 
 @register_controller("anmpc")
 class AdaptiveNMPC(NominalNMPC):
+    settings_schema: ClassVar[dict[str, Any] | None] = {
+        **NMPC_SCHEMA,
+        "required": [*NMPC_SCHEMA["required"], "adaptive"],
+        "properties": {
+            **NMPC_SCHEMA["properties"],
+            "adaptive": {
+                "type": "object",
+                "required": ["every", "alpha", "epsilon", "bounds"],
+                "additionalProperties": False,
+                "properties": {
+                    "every": {"type": "integer", "minimum": 1},
+                    "alpha": {"type": "number", "minimum": 0},
+                    "epsilon": {"type": "number", "exclusiveMinimum": 0},
+                    "bounds": {
+                        "type": "array",
+                        "items": {"type": "number", "minimum": 0},
+                        "minItems": 2,
+                        "maxItems": 2,
+                    },
+                },
+            },
+        },
+    }
+
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         require(self.settings, ("adaptive",), f"controllers.{self.name}")
@@ -51,8 +75,10 @@ class AdaptiveNMPC(NominalNMPC):
         theta = ca.SX.sym("theta", 3)
 
         def loss(th: ca.SX) -> ca.SX:
-            err = [internal.step(xs[:, j], us[:, j], phis[:, j], None, th)[3:6] - vs[:, j]
-                   for j in range(m)]  # fmt: skip
+            err = [
+                internal.step(xs[:, j], us[:, j], phis[:, j], None, th)[3:6] - vs[:, j]
+                for j in range(m)
+            ]
             return ca.sumsqr(ca.horzcat(*err)) / (3 * m)
 
         base = loss(theta)

@@ -65,6 +65,42 @@ class PIDLoop:
         )
 
 
+GAINS = {
+    "type": "object",
+    "required": ["kp", "ki", "kd", "i_max"],
+    "additionalProperties": False,
+    "properties": {k: {"type": "number", "minimum": 0} for k in ("kp", "ki", "kd", "i_max")},
+}
+"""The JSON schema of one PID loop's gains (every feedback controller's speed loop too)."""
+
+ENTRY = {"module": {"type": "string"}, "type": {"type": "string"}, "label": {"type": "string"}}
+"""The keys every controller entry may have besides its own settings."""
+
+
+def validate_settings(cls: type, name: str, settings: Any, source: str = "config") -> None:
+    """Check a controller entry against its class's ``settings_schema`` (a JSON schema of its
+    own keys: a misspelt or missing key, a wrong type, a value out of range) and raise
+    ``CapeError`` naming the key and the fix. A class without a schema is checked by its own
+    ``require`` calls only."""
+    from cape.config import _jsonschema
+    from cape.errors import CapeError
+
+    schema = getattr(cls, "settings_schema", None)
+    if schema is None:
+        return
+    full = {**schema, "properties": {**ENTRY, **schema.get("properties", {})}}
+    validator = _jsonschema().Draft202012Validator(full)
+    errors = sorted(validator.iter_errors(settings), key=lambda e: list(e.absolute_path))
+    if errors:
+        first = errors[0]
+        where = ".".join(["controllers", name, *(str(p) for p in first.absolute_path)])
+        raise CapeError(
+            f"{source}: `{where}`: {first.message}. Fix the entry: the {cls.__name__} class "
+            f"({cls.__module__}) reads exactly the keys of its settings_schema "
+            "(config/config.yaml shows every one)."
+        )
+
+
 def require(settings: dict[str, Any], keys: tuple[str, ...], where: str) -> None:
     """A clear error for a missing setting, naming the config key to add."""
     missing = [k for k in keys if k not in settings]
@@ -80,6 +116,8 @@ class Controller:
     """Base class: limits, the previous command, and the interface the rollout calls."""
 
     name: ClassVar[str] = "?"
+    settings_schema: ClassVar[dict[str, Any] | None] = None
+    """JSON schema of the config entry's own keys (checked when the workflow or a run starts)."""
     needs_internal_model: ClassVar[bool] = False
     needs_noise_levels: ClassVar[bool] = False
     """True for a controller whose design uses the run's disturbance sizes (the robust NMPC's

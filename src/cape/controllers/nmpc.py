@@ -20,14 +20,14 @@ and counts a fallback.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import casadi as ca
 import numpy as np
 
 from cape.closedloop.internal import N_STATE
 from cape.closedloop.reference import ReferencePoints
-from cape.controllers.base import Controller, PIDLoop, require
+from cape.controllers.base import GAINS, Controller, PIDLoop, require
 from cape.controllers.registry import register_controller
 from cape.controllers.shooting import MultipleShootingNLP, ipopt_options, sqpmethod_options
 from cape.controllers.sqp import CondensedSQP
@@ -35,14 +35,81 @@ from cape.errors import CapeError
 from cape.tracks.geometry import Projection
 
 N_INPUT = 2
-SETTINGS = ("horizon", "Q", "R", "margin", "slack_penalty", "solver", "sqp", "ipopt",
-            "sqpmethod", "speed")  # fmt: skip
+SETTINGS = (
+    "horizon",
+    "Q",
+    "R",
+    "margin",
+    "slack_penalty",
+    "solver",
+    "sqp",
+    "ipopt",
+    "sqpmethod",
+    "speed",
+)
 STAGE = N_STATE + N_INPUT + 1  # x_k, u_k, ε_{k+1}
+
+_POSITIVE = {"type": "number", "exclusiveMinimum": 0}
+_PAIR = {"type": "array", "items": {"type": "number", "minimum": 0}, "minItems": 2, "maxItems": 2}
+NMPC_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "required": [*SETTINGS, "margin"],
+    "additionalProperties": False,
+    "properties": {
+        "horizon": {"type": "integer", "minimum": 1},
+        "Q": {"type": "number", "minimum": 0},
+        "R": _PAIR,
+        "margin": {"type": "number"},
+        "slack_penalty": _PAIR,
+        "solver": {"enum": ["sqp", "ipopt", "sqpmethod"]},
+        "sqp": {
+            "type": "object",
+            "required": ["max_iter", "tol"],
+            "additionalProperties": False,
+            "properties": {
+                "max_iter": {"type": "integer", "minimum": 1},
+                "tol": _POSITIVE,
+                "newton_tol": _POSITIVE,
+                "radius": _POSITIVE,
+                "rescue": {"enum": ["ipopt", None]},
+            },
+        },
+        "ipopt": {
+            "type": "object",
+            "required": ["max_iter"],
+            "additionalProperties": False,
+            "properties": {"max_iter": {"type": "integer", "minimum": 1}, "tol": _POSITIVE},
+        },
+        "sqpmethod": {
+            "type": "object",
+            "required": ["max_iter", "tol", "qp_max_iter"],
+            "additionalProperties": False,
+            "properties": {
+                "max_iter": {"type": "integer", "minimum": 1},
+                "tol": _POSITIVE,
+                "qp_max_iter": {"type": "integer", "minimum": 1},
+            },
+        },
+        "compile": {
+            "type": "object",
+            "additionalProperties": False,
+            "properties": {
+                "enabled": {"type": "boolean"},
+                "cache": {"type": "string"},
+                "compiler": {"type": "string"},
+                "flags": {"type": "array", "items": {"type": "string"}},
+            },
+        },
+        "speed": GAINS,
+    },
+}
+"""The nominal NMPC's settings (the adaptive and robust variants add one section each)."""
 
 
 @register_controller("nmpc")
 class NominalNMPC(Controller):
     needs_internal_model = True
+    settings_schema: ClassVar[dict[str, Any] | None] = NMPC_SCHEMA
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -103,8 +170,16 @@ class NominalNMPC(Controller):
     def _layout(self) -> None:
         """Where each parameter of the NLP lives in its parameter vector."""
         n = self.horizon
-        sizes = {"phi": self.internal.n_phi, "u_prev": N_INPUT, "ref": 2 * n, "centre": 2 * n,
-                 "normal": 2 * n, "bound": 1, "dhat": 3, "theta": 3}  # fmt: skip
+        sizes = {
+            "phi": self.internal.n_phi,
+            "u_prev": N_INPUT,
+            "ref": 2 * n,
+            "centre": 2 * n,
+            "normal": 2 * n,
+            "bound": 1,
+            "dhat": 3,
+            "theta": 3,
+        }
         self.layout, start = {}, 0
         for name, size in sizes.items():
             self.layout[name] = slice(start, start + size)
@@ -181,9 +256,17 @@ class NominalNMPC(Controller):
         self.rescue_with: str | None = None
         if name == "sqp":
             self.backend: Any = CondensedSQP(
-                "ocp", self.horizon, N_STATE, self.n_param, self.layout, self.model_step,
-                self.stage_terms, self.limits, self.ts, {**s["sqp"], "compile": compile_settings},
-            )  # fmt: skip
+                "ocp",
+                self.horizon,
+                N_STATE,
+                self.n_param,
+                self.layout,
+                self.model_step,
+                self.stage_terms,
+                self.limits,
+                self.ts,
+                {**s["sqp"], "compile": compile_settings},
+            )
             self.rescue_with = s["sqp"].get("rescue")
         elif name in ("ipopt", "sqpmethod"):
             self.backend = self._multiple_shooting(name)
@@ -209,9 +292,15 @@ class NominalNMPC(Controller):
             opts = sqpmethod_options(int(m["max_iter"]), float(m["tol"]), int(m["qp_max_iter"]))
         index = {"x": self._ix, "u": self._iu, "e": self._ie}
         return MultipleShootingNLP(
-            "nmpc", name, self.nlp(), index, self.limits, self.layout["u_prev"], opts,
+            "nmpc",
+            name,
+            self.nlp(),
+            index,
+            self.limits,
+            self.layout["u_prev"],
+            opts,
             s.get("compile"),
-        )  # fmt: skip
+        )
 
     # --- what the variants change ----------------------------------------------------------------
     def estimate(self, z: np.ndarray) -> np.ndarray:
@@ -295,8 +384,11 @@ class NominalNMPC(Controller):
         x0 = np.concatenate([z, self.u_prev])
         rescues = self.rescues
         plan, ok = self.solve(x0, self.parameters(ref, phi), self.throttle_bounds(z, ref))
-        info = {"fallback": not ok, "rescued": self.rescues > rescues,
-                "iterations": self.backend.stats.iterations}  # fmt: skip
+        info = {
+            "fallback": not ok,
+            "rescued": self.rescues > rescues,
+            "iterations": self.backend.stats.iterations,
+        }
         if ok:
             self._plan = plan
             u = plan[0]

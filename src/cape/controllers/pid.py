@@ -13,10 +13,12 @@ cycle. ``preview: 0`` with a fixed look-ahead is the law as printed (the ``pid_p
 
 from __future__ import annotations
 
+from typing import Any, ClassVar
+
 import numpy as np
 
 from cape.closedloop.reference import ReferencePoints
-from cape.controllers.base import Controller, PIDLoop, preview_pose, require
+from cape.controllers.base import GAINS, Controller, PIDLoop, preview_pose, require
 from cape.controllers.registry import register_controller
 from cape.tracks.geometry import Projection, cross_track_error, wrap_angle
 
@@ -25,6 +27,28 @@ SETTINGS = ("speed", "heading", "cross_track", "lookahead", "preview")
 
 @register_controller("pid")
 class PIDController(Controller):
+    settings_schema: ClassVar[dict[str, Any] | None] = {
+        "type": "object",
+        "required": list(SETTINGS),
+        "additionalProperties": False,
+        "properties": {
+            "speed": GAINS,
+            "heading": GAINS,
+            "cross_track": GAINS,
+            "lookahead": {
+                "type": "object",
+                "minProperties": 1,
+                "maxProperties": 1,
+                "additionalProperties": False,
+                "properties": {
+                    "time": {"type": "number", "minimum": 0},
+                    "distance": {"type": "number", "minimum": 0},
+                },
+            },
+            "preview": {"type": "number", "minimum": 0},
+        },
+    }
+
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         require(self.settings, SETTINGS, f"controllers.{self.name}")

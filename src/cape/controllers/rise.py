@@ -20,11 +20,12 @@ Latency compensation (SPEC §7.1–7.2): e1 and ė1 come from the measured pose 
 from __future__ import annotations
 
 import math
+from typing import Any, ClassVar
 
 import numpy as np
 
 from cape.closedloop.reference import ReferencePoints
-from cape.controllers.base import Controller, PIDLoop, preview_pose, require
+from cape.controllers.base import GAINS, Controller, PIDLoop, preview_pose, require
 from cape.controllers.registry import register_controller
 from cape.tracks.geometry import Projection, cross_track_error
 
@@ -33,6 +34,21 @@ SETTINGS = ("ks", "alpha", "beta", "ku", "sign_width", "kv", "speed", "preview",
 
 @register_controller("rise")
 class RISEController(Controller):
+    settings_schema: ClassVar[dict[str, Any] | None] = {
+        "type": "object",
+        "required": list(SETTINGS),
+        "additionalProperties": False,
+        "properties": {
+            **{
+                k: {"type": "number", "minimum": 0}
+                for k in ("ks", "alpha", "beta", "ku", "kv", "preview")
+            },
+            "sign_width": {"type": "number", "exclusiveMinimum": 0},
+            "speed": GAINS,
+            "speed_schedule": {"type": ["number", "null"], "exclusiveMinimum": 0},
+        },
+    }
+
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         require(self.settings, SETTINGS, f"controllers.{self.name}")

@@ -12,18 +12,49 @@ estimate in its prediction and a track margin that grows with the recent predict
 from __future__ import annotations
 
 from collections import deque
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from cape.controllers.base import require
 from cape.controllers.ekf import ExtendedKalmanFilter, NoiseLevels
-from cape.controllers.nmpc import NominalNMPC
+from cape.controllers.nmpc import NMPC_SCHEMA, NominalNMPC
 from cape.controllers.registry import register_controller
 
 
 @register_controller("rnmpc")
 class RobustNMPC(NominalNMPC):
+    settings_schema: ClassVar[dict[str, Any] | None] = {
+        **NMPC_SCHEMA,
+        "required": [*NMPC_SCHEMA["required"], "robust"],
+        "properties": {
+            **NMPC_SCHEMA["properties"],
+            "robust": {
+                "type": "object",
+                "required": [
+                    "m0",
+                    "gamma",
+                    "r_max",
+                    "error_window",
+                    "dhat_filter",
+                    "ekf_model_std",
+                ],
+                "additionalProperties": False,
+                "properties": {
+                    **{k: {"type": "number", "minimum": 0} for k in ("m0", "gamma", "r_max")},
+                    "error_window": {"type": "integer", "minimum": 1},
+                    "dhat_filter": {"type": "number", "minimum": 0, "maximum": 1},
+                    "ekf_model_std": {
+                        "type": "array",
+                        "items": {"type": "number", "minimum": 0},
+                        "minItems": 6,
+                        "maxItems": 6,
+                    },
+                },
+            },
+        },
+    }
+
     needs_noise_levels = True
 
     def __init__(self, *args: Any, levels: NoiseLevels | None = None, **kwargs: Any) -> None:

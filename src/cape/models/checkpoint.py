@@ -8,18 +8,20 @@ which reads them without PyTorch: ``cape.models.trained``).
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from cape.errors import CapeError
 from cape.io import write_bytes, write_text
 from cape.models.base import LearnedModel
 from cape.models.network import save_network
-from cape.models.trained import FORMAT_VERSION, load_physics
+from cape.models.trained import FORMAT_VERSION, load_physics, read_meta
 
 
 def save_model(model: LearnedModel, folder: str | Path, meta: dict[str, Any]) -> None:
@@ -27,8 +29,10 @@ def save_model(model: LearnedModel, folder: str | Path, meta: dict[str, Any]) ->
     folder = Path(folder)
     buffer = io.BytesIO()
     torch.save(model.state_dict(), buffer)
-    write_bytes(folder / "model.pt", buffer.getvalue())
+    weights = buffer.getvalue()
+    write_bytes(folder / "model.pt", weights)
     full = {
+        "weights_sha256": hashlib.sha256(weights).hexdigest(),  # checked by every load
         "format": FORMAT_VERSION,
         "name": model.name,
         "class": f"{type(model.physics).__module__}.{type(model.physics).__qualname__}",
@@ -50,6 +54,18 @@ def load_model(folder: str | Path, expected_name: str | None = None) -> LearnedM
     model = LearnedModel(load_physics(folder, expected_name))
     name = model.name
     weights = folder / "model.pt"
+    recorded = read_meta(folder).get("weights_sha256")
+    if weights.is_file() and recorded != hashlib.sha256(weights.read_bytes()).hexdigest():
+        why = (
+            (
+                "does not match the checksum recorded in meta.json when it was trained (the file "
+                "was damaged or replaced)"
+            )
+            if recorded
+            else "has no checksum in meta.json"
+        )
+        raise CapeError(f"{weights}: {why}; delete the model folder and train it again "
+                        f"(`snakemake --cores 1 {weights}`)")  # fmt: skip
     try:
         state = torch.load(weights, map_location="cpu", weights_only=True)
     except FileNotFoundError:
@@ -96,5 +112,12 @@ def export_network(
     loop; returns the path written."""
     folder = Path(folder)
     target = Path(out) if out is not None else folder / "network.npz"
-    save_network(target, load_model(folder, expected_name).network_arrays())
+    arrays = load_model(folder, expected_name).network_arrays()
+    bad = [k for k, v in arrays.items() if v.dtype.kind == "f" and not np.all(np.isfinite(v))]
+    if bad:
+        raise CapeError(
+            f"{folder / 'model.pt'}: non-finite weights ({', '.join(bad[:3])}); the training "
+            "diverged or the file is damaged: train the model again"
+        )
+    save_network(target, arrays)
     return target

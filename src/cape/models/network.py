@@ -26,6 +26,7 @@ import numpy as np
 from cape.buffered import BufferedCall
 from cape.compiled import cached_functions, compiled_functions
 from cape.errors import CapeError
+from cape.integrity import check_arrays, sealed_arrays
 from cape.io import save_npz
 
 Array = np.ndarray
@@ -175,8 +176,8 @@ def _layer_norm(weight: Array, bias: Array, eps: float) -> Callable[[Array], Arr
 
 
 def save_network(path: str | Path, arrays: Mapping[str, Array]) -> None:
-    """Write the exported network atomically."""
-    save_npz(path, **arrays)
+    """Write the exported network atomically, with the checksum its readers verify."""
+    save_npz(path, **sealed_arrays(arrays))
 
 
 def load_network(
@@ -190,8 +191,9 @@ def load_network(
             arrays = {k: npz[k] for k in npz.files}
     except FileNotFoundError:
         raise CapeError(f"{path}: missing; {fix}") from None
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise CapeError(f"{path}: not a readable network ({exc}); delete it and {fix}") from exc
+    check_arrays(arrays, path, fix)
     version = int(arrays["format"]) if "format" in arrays else None
     if version != NETWORK_FORMAT:
         raise CapeError(f"{path}: network format {version}, expected {NETWORK_FORMAT}; {fix}")

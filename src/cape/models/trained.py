@@ -59,10 +59,17 @@ def read_meta(folder: str | Path) -> dict[str, Any]:
         raise CapeError(
             f"{path}: missing; train the model first (snakemake --cores 2 {path})"
         ) from None
-    except json.JSONDecodeError as exc:
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise CapeError(
             f"{path}: corrupt ({exc}); delete the model folder and train again"
         ) from exc
+    if not isinstance(meta, dict):
+        raise CapeError(f"{path}: corrupt (not a JSON object); delete the folder and train again")
+    missing = [k for k in ("name", "spec", "ts") if k not in meta]
+    if missing:
+        raise CapeError(
+            f"{path}: lacks {', '.join(missing)}; delete the model folder and train it again"
+        )
     if meta.get("format") != FORMAT_VERSION:
         raise CapeError(
             f"{path}: checkpoint format {meta.get('format')!r}, expected {FORMAT_VERSION}; retrain"
