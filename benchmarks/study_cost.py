@@ -18,6 +18,8 @@ import json
 from collections import defaultdict
 from pathlib import Path
 
+from cape.study.grid import RunId
+
 PHASES = ("startup", "build", "lap", "write")
 
 
@@ -33,8 +35,9 @@ def training(results: Path) -> dict[str, float]:
 def rollouts(results: Path) -> list[dict]:
     """One row per computed run: study, controller, and the wall seconds of each phase."""
     rows = []
-    for path in sorted((results / "runs").glob("*/*/*/*/eta*/seed*/timing.json")):
-        study, _plant, _internal, controller = path.relative_to(results / "runs").parts[:4]
+    for path in sorted((results / "runs").glob(f"{RunId.glob()}/timing.json")):
+        run = RunId.parse(path)
+        study, controller = run.study, run.controller
         job = json.loads(path.read_text()).get("job_s")
         if job is None:  # a run of an older version, without its phases
             continue

@@ -13,10 +13,10 @@ import math
 
 import numpy as np
 
-from cape.closedloop.reference import ReferencePoints
 from cape.controllers import register_controller
 from cape.controllers.base import Controller, require
 from cape.tracks.geometry import Projection
+from cape.tracks.reference import ReferencePoints
 from cape.vehicle.params import GROUND_TRUTH
 
 

@@ -74,3 +74,18 @@ def test_missing_file_and_bad_json_are_clear(tmp_path: Path) -> None:
 def test_schema_and_default_config_live_where_the_workflow_expects() -> None:
     assert (REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml").is_file()
     assert (REPO_ROOT / "config" / "config.yaml").is_file()
+
+
+def test_the_paper_study_must_be_a_study_of_the_grid(config) -> None:
+    bad = copy.deepcopy(config)
+    bad["study"]["paper"] = "lerned"
+    with pytest.raises(CapeError, match=r"`study.paper` names 'lerned'.*learned"):
+        validate_config(bad, "cfg.yaml")
+    own = copy.deepcopy(config)  # a grid of one's own: no paper study, no scorecard
+    own["study"]["paper"] = None
+    own["study"]["studies"] = {"mine": {"plants": ["truth"], "controllers": ["pid"]}}
+    assert validate_config(own, "cfg.yaml")["study"]["paper"] is None
+    own["study"]["studies"]["bikes"] = {"kind": "bicycle", "plants": ["epm-fixed"],
+                                        "controllers": ["pid"]}  # fmt: skip
+    with pytest.raises(CapeError, match=r"`study.studies.bikes.kind` is bicycle"):
+        validate_config(own, "cfg.yaml")

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from cape.closedloop.disturbances import (
+    SOURCES,
     Crosswind,
     DisturbancePipeline,
     ImuBias,
@@ -143,7 +144,7 @@ def test_every_source_is_active_above_zero_and_runs_repeat(config) -> None:
         return np.array(out)
 
     pipe = DisturbancePipeline.from_config(config["disturbances"], eta=0.5, seed=0)
-    assert pipe.active_sources() == ["noise", "process", "delay", "bias", "wind", "mismatch"]
+    assert pipe.active_sources() == list(SOURCES)  # every one, in their fixed order
     np.testing.assert_array_equal(run(7), run(7))
     assert not np.array_equal(run(7), run(8))
     with pytest.raises(ValueError, match="η must be ≥ 0"):
@@ -154,3 +155,53 @@ def test_measurement_noise_floor_applies_at_zero() -> None:
     noise = MeasurementNoise(sigma=0.05, floor=np.full(6, 1e-4))
     draws = np.array([noise.apply(np.zeros(6), np.random.default_rng(i)) for i in range(5000)])
     np.testing.assert_allclose(draws.std(axis=0), 1e-4, rtol=0.05)
+
+
+# --- a source added by a module and a config entry (examples/throttle_delay.py) -----------
+
+
+def _with_throttle_delay(config, **entry) -> dict:
+    settings = {"module": "examples/throttle_delay.py", "active_from": 0, "steps": 2, **entry}
+    return {**config["disturbances"], "throttle_delay": settings}
+
+
+def test_a_plugged_in_source_acts_after_the_six_and_delays_the_throttle(config) -> None:
+    disturbances = _with_throttle_delay(config)
+    pipe = DisturbancePipeline.from_config(disturbances, eta=1.0, seed=0)
+    assert pipe.active_sources() == [*SOURCES, "throttle_delay"]
+    pipe.reset(0.0)
+    applied = [pipe.actuate(np.array([t, 0.0]))[0] for t in (0.1, 0.2, 0.3, 0.4)]
+    assert applied == [0.0, 0.0, 0.1, 0.2]  # two samples late, released at the start
+    quiet = DisturbancePipeline.from_config(disturbances, eta=0.0, seed=0)
+    assert quiet.active_sources() == []  # η = 0 still corrupts nothing
+
+
+def test_table_3_and_the_block_diagram_list_a_plugged_in_source(config) -> None:
+    from cape.study.tables import uncertainty_activation
+
+    table = uncertainty_activation(_with_throttle_delay(config, active_from=1.5))
+    column = table.set_index("η")["throttle delay (steps)"]
+    assert column["1"] == "–" and column["2"] == "2" and column["5"] == "2"
+    assert list(table.columns)[-1] == "throttle delay (steps)"  # after SPEC §6's six
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from cape.plots.study import block_diagram
+
+    fig = block_diagram(_with_throttle_delay(config))
+    texts = [t.get_text() for t in fig.axes[0].texts]
+    actuation = next(t for t in texts if "steering delay" in t)
+    assert "throttle delay" in actuation  # in the actuators' box, beside the steering delay
+
+
+def test_a_bad_source_entry_is_named_with_its_key(config) -> None:
+    from cape.closedloop.disturbances import validate_sources
+    from cape.errors import CapeError
+
+    with pytest.raises(CapeError, match=r"disturbances\.throttle_delay\.steps"):
+        validate_sources(_with_throttle_delay(config, steps=-1), "config/config.yaml")
+    with pytest.raises(CapeError, match="throttle_delay"):
+        validate_sources(_with_throttle_delay(config, stepz=2), "config/config.yaml")
+    with pytest.raises(CapeError, match="gust"):  # no class of that name and no module
+        validate_sources({**config["disturbances"], "gust": {"active_from": 0}})

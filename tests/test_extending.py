@@ -75,6 +75,7 @@ def test_a_model_and_a_controller_added_by_config_alone_run_through_the_study(
     cfg["models"]["mlp"]["train"]["epochs"] = 2
     extension = {**cfg["study"]["studies"]["extension"], "eta": ["0", "1"]}
     cfg["study"]["studies"] = {"extension": extension}  # only the new names' slice
+    cfg["study"]["paper"] = None  # not the paper's grid: no scorecard
     mirror = cfg["tracks"]["mirror"]
     cfg["tracks"]["mirror"] = str((REPO_ROOT / mirror).resolve()) if mirror else None
     (work / "config").mkdir()
@@ -111,3 +112,47 @@ def test_a_model_and_a_controller_added_by_config_alone_run_through_the_study(
     )
     assert written == ["config/config.yaml", "mine/pure_pursuit.py", "mine/velocity_mlp.py"]
     assert _repo_status() == before
+
+
+@pytest.mark.slow
+def test_a_disturbance_source_added_by_config_alone_reaches_the_runs_and_table_3(
+    tmp_path: Path,
+) -> None:
+    import pandas as pd
+
+    work = tmp_path / "work"
+    (work / "mine").mkdir(parents=True)
+    shutil.copy(EXAMPLES / "throttle_delay.py", work / "mine" / "throttle_delay.py")
+    cfg = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
+    for overlay in (REPO_ROOT / "config" / "smoke.yaml", EXAMPLES / "disturbance.yaml"):
+        cfg = _merge(cfg, yaml.safe_load(overlay.read_text()))
+    cfg["disturbances"]["throttle_delay"]["module"] = "mine/throttle_delay.py"
+    cfg["study"]["studies"] = {
+        "truth": {"plants": ["truth"], "internal": ["truth"], "controllers": ["pid"]}
+    }
+    cfg["study"]["paper"] = None
+    mirror = cfg["tracks"]["mirror"]
+    cfg["tracks"]["mirror"] = str((REPO_ROOT / mirror).resolve()) if mirror else None
+    (work / "config").mkdir()
+    (work / "config" / "config.yaml").write_text(yaml.safe_dump(cfg))
+
+    run = "results/runs/truth/truth/truth/pid/eta{}/seed0/timeseries.parquet"
+    targets = ["results/tables/table03_uncertainty_activation.csv", run.format(0), run.format(1)]
+    snakefile = str(REPO_ROOT / "Snakefile")
+    result = subprocess.run(
+        ["snakemake", "-s", snakefile, "--cores", "2", "-d", str(work), *targets],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+
+    table = pd.read_csv(work / targets[0], dtype=str).set_index("η")
+    assert table.loc["0", "throttle delay (steps)"] == "–"
+    assert table.loc["1", "throttle delay (steps)"] == "2"
+    quiet = pd.read_parquet(work / targets[1])
+    np.testing.assert_array_equal(quiet["T_applied"], quiet["T_cmd"])  # η = 0: no delay
+    late = pd.read_parquet(work / targets[2])
+    assert len(late) > 50
+    np.testing.assert_array_equal(late["T_applied"].to_numpy()[2:], late["T_cmd"].to_numpy()[:-2])
+    assert (late["T_applied"].to_numpy()[:2] == 0.0).all()

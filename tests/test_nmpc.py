@@ -10,9 +10,9 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from cape.closedloop.internal import N_STATE
 from cape.closedloop.rollout import initial_state
 from cape.closedloop.setup import build_internal, build_run
+from cape.controllers.internal import N_STATE
 from cape.integrity import sealed_arrays
 
 

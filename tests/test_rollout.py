@@ -13,12 +13,12 @@ import pytest
 from cape.cli import main
 from cape.closedloop.disturbances import SOURCES, DisturbancePipeline
 from cape.closedloop.plants import TruthPlant
-from cape.closedloop.reference import ReferenceLine
 from cape.closedloop.rollout import initial_state, run_lap
 from cape.controllers import controller_class
 from cape.controllers.base import Controller
 from cape.integrity import sealed_arrays
 from cape.tracks.raceline import build_raceline
+from cape.tracks.reference import ReferenceLine
 from cape.tracks.track import load_track
 from cape.vehicle import ACTUATOR_LIMITS, GROUND_TRUTH
 

@@ -26,10 +26,10 @@ STUDIES = {"learned": {"plants": ["epm"]}, "truth": {"plants": ["truth"], "inter
 
 def _write_run(root: Path, study: str, plant: str, internal: str, controller: str, eta: str,
                seed: int, success: bool, lap: float | None, ey: float) -> Path:  # fmt: skip
-    folder = root / study / plant / internal / controller / f"eta{eta}" / f"seed{seed}"
+    folder = RunId(study, plant, internal, controller, eta, seed).folder(root)
     folder.mkdir(parents=True)
     metrics = {
-        "plant": plant, "internal": internal, "controller": controller, "eta": eta,
+        "study": study, "plant": plant, "internal": internal, "controller": controller, "eta": eta,
         "seed": seed, "success": success, "failure": None if success else "off_track",
         "lap_time": lap if success else None, "lap_time_penalised": lap if success else 15.0,
         "mean_abs_ey": ey, "mean_abs_ey_penalised": ey if success else 0.23, "steps": 100,
@@ -40,9 +40,9 @@ def _write_run(root: Path, study: str, plant: str, internal: str, controller: st
     return folder / "metrics.json"
 
 
-def _of_their_folders(paths: list[Path]) -> list[tuple[str, Path]]:
-    """(study, metrics.json) pairs, each run of the study its folder names."""
-    return [(RunId.parse(p).study, p) for p in paths]
+def _of_their_folders(paths: list[Path]) -> list[tuple[str | None, Path]]:
+    """(study, metrics.json) pairs, each run of the study its metrics.json records."""
+    return [(None, p) for p in paths]
 
 
 def test_mean_ci_is_the_student_t_interval() -> None:
@@ -67,6 +67,19 @@ def test_runs_are_collected_with_their_study_and_model(tmp_path: Path) -> None:
         collect_runs([], STUDIES)
 
 
+def test_a_runs_study_is_read_from_its_metrics(tmp_path: Path) -> None:
+    path = _write_run(tmp_path, "truth", "truth", "epm", "nmpc", "1", 0, True, 7.5, 0.02)
+    moved = tmp_path / "elsewhere" / "metrics.json"  # not under a run's folder layout
+    moved.parent.mkdir()
+    moved.write_text(path.read_text())
+    assert set(collect_runs([(None, moved)], STUDIES)["study"]) == {"truth"}
+    metrics = json.loads(path.read_text())
+    del metrics["study"]
+    moved.write_text(json.dumps(metrics))
+    with pytest.raises(CapeError, match="no `study`"):
+        collect_runs([(None, moved)], STUDIES)
+
+
 def test_a_run_two_studies_ask_for_is_computed_once_and_read_by_both(tmp_path: Path) -> None:
     """The ablation's diagonal (internal = plant) repeats the learned study's runs: the grid
     computes each once, in the first study's folder, and the aggregation reads it for both."""
@@ -82,10 +95,14 @@ def test_a_run_two_studies_ask_for_is_computed_once_and_read_by_both(tmp_path: P
     assert computed[diagonal] == RunId("learned", "epm", "epm", "nmpc", "1", 0)
     assert len(set(computed.values())) == 3
     assert RunId.parse(diagonal.folder(tmp_path) / "metrics.json") == diagonal
+    assert list(tmp_path.glob(RunId.glob())) == []
+    with pytest.raises(ValueError, match="not a run folder"):
+        RunId.parse(tmp_path / "learned" / "epm" / "seed0")
     path = _write_run(tmp_path, "learned", "epm", "epm", "nmpc", "1", 0, True, 7.1, 0.01)
     table = collect_runs([("learned", path), ("ablation", path)], STUDIES)
     assert sorted(table["study"]) == ["ablation", "learned"]
     assert table["lap_time"].tolist() == [7.1, 7.1]
+    assert list(tmp_path.glob(RunId.glob())) == [path.parent]
 
 
 def test_summary_counts_successes_and_penalises_failures(tmp_path: Path) -> None:

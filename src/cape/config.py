@@ -108,6 +108,21 @@ def _check_grid(config: dict[str, Any], source: str) -> None:
                     )
         for i, label in enumerate(grid.get("eta", [])):
             check_eta(label, f"{source}: field `{where}.eta[{i}]`")
+    paper = config["study"].get("paper")
+    if paper is not None and paper not in config["study"]["studies"]:
+        raise CapeError(
+            f"{source}: field `study.paper` names {paper!r}, which is not a study of "
+            f"`study.studies` ({', '.join(config['study']['studies'])}); name one of those, "
+            "or set it to null for a grid without the paper's study (and no scorecard)"
+        )
+    if paper is None:
+        for study, grid in config["study"]["studies"].items():
+            if grid.get("kind") == "bicycle":
+                raise CapeError(
+                    f"{source}: field `study.studies.{study}.kind` is bicycle, which compares "
+                    "against the paper's study, but `study.paper` is null; name that study in "
+                    "`study.paper`"
+                )
 
 
 def _jsonschema() -> Any:

@@ -26,8 +26,11 @@ T = TypeVar("T", bound=type)
 class Registry(Generic[T]):
     """Classes of one kind (``"model"``, ``"controller"``) by name."""
 
-    def __init__(self, kind: str, builtin_modules: Mapping[str, str]) -> None:
+    def __init__(
+        self, kind: str, builtin_modules: Mapping[str, str], section: str | None = None
+    ) -> None:
         self.kind = kind
+        self.section = section or f"{kind}s"  # the config section of its entries
         self.builtin_modules = dict(builtin_modules)
         self._classes: dict[str, T] = {}
 
@@ -51,7 +54,7 @@ class Registry(Generic[T]):
         if name not in self._classes:
             module = (spec or {}).get("module") or self.builtin_modules.get(name)
             if module is None:
-                entry = f"{self.kind}s.{name}.module"
+                entry = f"{self.section}.{name}.module"
                 raise CapeError(
                     f"unknown {self.kind} {name!r}: add `{entry}: <python module>` to the config, "
                     f"or use one of {sorted(self.builtin_modules)}"

@@ -8,9 +8,11 @@ from snakemake.utils import validate
 
 from cape.config import check_consistency
 from cape.controllers import controller_class
+from cape.closedloop.disturbances import validate_sources
 from cape.controllers.base import validate_settings
 from cape.locks import clear_stale_locks
-from cape.study.grid import canonical, study_runs
+from cape.study.grid import RunId, canonical, study_runs
+from cape.study.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS
 from cape.tracks.manifest import BAYESRACE_FILES
 
 
@@ -24,6 +26,7 @@ validate(config, "../schemas/config.schema.yaml")
 check_consistency(config, SOURCE)
 for _name, _entry in config["controllers"].items():  # each controller's own keys
     validate_settings(controller_class(_name, _entry), _name, _entry, SOURCE)
+validate_sources(config["disturbances"], SOURCE)  # each disturbance source's own keys
 
 # The software environment of every rule for `--sdm conda` (relative to workflow/rules/).
 CAPE_ENV = "../envs/cape.yaml"
@@ -93,6 +96,17 @@ def model_args():
     return " ".join(f"--model {m}={model_dir(m)}" for m in MODELS)
 
 
+def model_folder_args(input):
+    """``--model NAME=DIR`` for each trained model a run or solver rule declares as input (its
+    plant's and internal model's meta.json): the command reads the models the rule names."""
+    folders = {}
+    for key, path in input.items():
+        if key.endswith("_meta"):
+            folder = os.path.dirname(path)
+            folders[os.path.basename(folder)] = folder
+    return " ".join(f"--model {name}={folder}" for name, folder in sorted(folders.items()))
+
+
 def raceline_path():
     return f"results/raceline/{config['reference']['track']}.npz"
 
@@ -154,6 +168,9 @@ def grid_runs():
 
 
 GRID = grid_runs()
+RUN_FOLDER = str(RunId.wildcards().folder())  # a run's files, its log and its figure, as
+RUN_LOG = str(RunId.wildcards().folder("results/logs/runs"))  # the rules' wildcard patterns
+RUN_STEM = RunId.wildcards().stem()
 
 
 def aggregate_config_json():
@@ -171,22 +188,40 @@ def rollout_targets():
 
 # --- the study's notebooks -------------------------------------------------------------------
 NOTEBOOKS = os.path.join(workflow.basedir, "notebooks")  # beside the Snakefile, whatever -d is
-TABLE_EXTS = ["csv", "md", "tex"]
-CLOSED_LOOP_FIGURES = [
-    "fig02_signals_eta0",
-    "fig03_tracking_error_sweep",
-    "fig07_ex_time_eta0",
-    "fig08_ey_time_eta0",
-    "fig09_trajectories_eta0",
-    "fig10_penalised_errors_sweep",
-    "fig11_penalised_lap_time",
-]
-CLOSED_LOOP_TABLES = ["table06_metrics_eta1", "table07_success"]
-BICYCLE_FIGURES = ["fig05_bicycle_errors", "fig06_bicycle_lap_time"]
-# the bicycle and ablation studies have notebooks of their own; every other study (learned,
-# truth, or one a user adds) gets the closed-loop figures and tables
-OWN_NOTEBOOK_STUDIES = ("bicycle", "ablation")
-CLOSED_LOOP_STUDIES = [s for s in config["study"]["studies"] if s not in OWN_NOTEBOOK_STUDIES]
+TABLE_EXTS = [".csv", ".md", ".tex"]
+STUDIES = config["study"]["studies"]
+
+
+def studies_of_kind(kind):
+    """A wildcard constraint: the studies of ``kind`` (a pattern that matches nothing if none)."""
+    names = [s for s, grid in STUDIES.items() if grid.get("kind", "closed_loop") == kind]
+    return "|".join(names) or "(?!)"
+
+
+def figures(notebook, folder, ext):
+    """The figures a notebook declares (cape.study.outputs), as files in ``folder``."""
+    declared = {**STUDY_NOTEBOOKS, **WHOLE_STUDY_NOTEBOOKS}[notebook]
+    return [f"{folder}/{name}{ext}" for name in declared.figures]
+
+
+def tables(notebook, folder):
+    """The tables a notebook declares, as .csv, .md and .tex files in ``folder``."""
+    declared = {**STUDY_NOTEBOOKS, **WHOLE_STUDY_NOTEBOOKS}[notebook]
+    return [f"{folder}/{name}{ext}" for name in declared.tables for ext in TABLE_EXTS]
+
+
+def run_notebook(arguments):
+    """The shell command of a notebook rule: papermill runs it under a `.part.ipynb` name (it
+    writes as it runs), nbconvert makes the HTML copy, and the notebook is renamed last, so an
+    interrupted notebook never looks finished."""
+    return (
+        "papermill {input.notebook} {output.notebook}.part.ipynb --cwd . --no-progress-bar "
+        + arguments
+        + " > {log} 2>&1"
+        " && jupyter nbconvert --to html {output.notebook}.part.ipynb --output-dir results/notebooks"
+        " --output $(basename {output.html} .html) >> {log} 2>&1"
+        " && mv {output.notebook}.part.ipynb {output.notebook}"
+    )
 
 
 def example_series(study):
@@ -199,20 +234,17 @@ def example_series(study):
 
 
 def study_targets():
-    """Every table, figure and executed notebook of the study."""
-    studies = config["study"]["studies"]
+    """Every table, figure and executed notebook of the study: per study, the notebook of its
+    kind and the failure map; the set-up figures; the scorecard when the paper's study is in
+    the grid (its claims are about that study)."""
     targets = [
         "results/study/runs.parquet",
-        "results/figures/fig01_block_diagram.pdf",
         "results/notebooks/setup.html",
     ]
-    for study in OWN_NOTEBOOK_STUDIES:
-        if study in studies:
-            targets.append(f"results/notebooks/{study}.html")
-    if "learned" in studies:  # the paper's claims are about the learned study
+    targets += [f"results/notebooks/{study}.html" for study in STUDIES]
+    targets += [f"results/notebooks/failures_{study}.html" for study in STUDIES]
+    if config["study"].get("paper") in STUDIES:
         targets += ["results/tables/table08_scorecard.md", "results/notebooks/scorecard.html"]
-    targets += [f"results/notebooks/closed_loop_{study}.html" for study in CLOSED_LOOP_STUDIES]
-    targets += [f"results/notebooks/failures_{study}.html" for study in studies]
     return targets
 
 

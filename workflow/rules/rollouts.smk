@@ -8,6 +8,7 @@ rule solver:
         "results/solvers/{controller}/{internal}.json",
     params:
         cfg=lambda wildcards: rollout_config_json(wildcards.controller),
+        models=lambda wildcards, input: model_folder_args(input),
     conda:
         CAPE_ENV
     log:
@@ -16,29 +17,30 @@ rule solver:
         "results/benchmarks/solvers/{controller}/{internal}.tsv"
     shell:
         "cape build-solver --controller {wildcards.controller} --internal {wildcards.internal}"
-        " --raceline {input.raceline} --out {output} --config-json {params.cfg:q} > {log} 2>&1"
+        " --raceline {input.raceline} --out {output} {params.models} --config-json {params.cfg:q} > {log} 2>&1"
 
 
 rule rollout:
     input:
         unpack(rollout_inputs),
     output:
-        metrics="results/runs/{study}/{plant}/{internal}/{controller}/eta{eta}/seed{seed}/metrics.json",
-        timing="results/runs/{study}/{plant}/{internal}/{controller}/eta{eta}/seed{seed}/timing.json",
-        series="results/runs/{study}/{plant}/{internal}/{controller}/eta{eta}/seed{seed}/timeseries.parquet",
+        metrics=f"{RUN_FOLDER}/metrics.json",
+        timing=f"{RUN_FOLDER}/timing.json",
+        series=f"{RUN_FOLDER}/timeseries.parquet",
     params:
         cfg=lambda wildcards: rollout_config_json(wildcards.controller),
         out=lambda wildcards, output: os.path.dirname(output.metrics),
+        models=lambda wildcards, input: model_folder_args(input),
     conda:
         CAPE_ENV
     log:
-        "results/logs/runs/{study}/{plant}/{internal}/{controller}/eta{eta}/seed{seed}.log",
+        f"{RUN_LOG}.log",
     # no benchmark: Snakemake's monitor roughly doubled the wall time of these 1–3 s jobs; the
     # run times its own phases into timing.json (benchmarks/study_cost.py reads them)
     shell:
         "cape rollout --study {wildcards.study} --plant {wildcards.plant}"
         " --controller {wildcards.controller} --internal {wildcards.internal}"
-        " --eta {wildcards.eta} --seed {wildcards.seed} --out {params.out}"
+        " --eta {wildcards.eta} --seed {wildcards.seed} --out {params.out} {params.models}"
         " --raceline {input.raceline} --config-json {params.cfg:q} > {log} 2>&1"
 
 
@@ -52,19 +54,19 @@ rule rollouts:
 rule figure_rollout:
     """The path and signals of one run, e.g. results/figures/rollout/learned_epm_epm_pid_eta0_seed0.pdf"""
     input:
-        metrics="results/runs/{study}/{plant}/{internal}/{controller}/eta{eta}/seed{seed}/metrics.json",
-        series="results/runs/{study}/{plant}/{internal}/{controller}/eta{eta}/seed{seed}/timeseries.parquet",
+        metrics=f"{RUN_FOLDER}/metrics.json",
+        series=f"{RUN_FOLDER}/timeseries.parquet",
         raceline=raceline_path(),
     output:
-        pdf="results/figures/rollout/{study}_{plant}_{internal}_{controller}_eta{eta}_seed{seed}.pdf",
-        png="results/figures/rollout/{study}_{plant}_{internal}_{controller}_eta{eta}_seed{seed}.png",
+        pdf=f"results/figures/rollout/{RUN_STEM}.pdf",
+        png=f"results/figures/rollout/{RUN_STEM}.png",
     params:
         cfg=lambda wildcards: config_json("tracks", "data", "reference"),
         run=lambda wildcards, input: os.path.dirname(input.metrics),
     conda:
         CAPE_ENV
     log:
-        "results/logs/figures/rollout/{study}_{plant}_{internal}_{controller}_eta{eta}_seed{seed}.log",
+        f"results/logs/figures/rollout/{RUN_STEM}.log",
     shell:
         "cape plot-rollout --run {params.run} --raceline {input.raceline} --out {output.pdf} --out {output.png}"
         " --config-json {params.cfg:q} > {log} 2>&1"

@@ -31,10 +31,9 @@ rule notebook_setup:
     input:
         notebook=f"{NOTEBOOKS}/setup.ipynb",
     output:
-        report(multiext("results/figures/fig01_block_diagram", ".png"), caption="../report/fig01.rst", category="Set-up"),
-        multiext("results/figures/fig01_block_diagram", ".pdf"),
-        multiext("results/tables/table02_controller_parameters", ".csv", ".md", ".tex"),
-        multiext("results/tables/table03_uncertainty_activation", ".csv", ".md", ".tex"),
+        report(figures("setup", "results/figures", ".png"), caption="../report/fig01.rst", category="Set-up"),
+        figures("setup", "results/figures", ".pdf"),
+        tables("setup", "results/tables"),
         notebook="results/notebooks/setup.ipynb",
         html="results/notebooks/setup.html",
     params:
@@ -45,15 +44,12 @@ rule notebook_setup:
         "results/logs/notebooks/setup.log",
     localrule: True
     shell:
-        "papermill {input.notebook} {output.notebook}.part.ipynb --cwd . --no-progress-bar"
-        " -r config_json {params.cfg:q} > {log} 2>&1"
-        " && jupyter nbconvert --to html {output.notebook}.part.ipynb --output-dir results/notebooks"
-        " --output $(basename {output.html} .html) >> {log} 2>&1"
-        " && mv {output.notebook}.part.ipynb {output.notebook}"  # the notebook last: complete
+        run_notebook("-r config_json {params.cfg:q}")
 
 
 rule notebook_closed_loop:
-    """Figures 2, 3, 7–11 and tables 6–7 of one study (learned, truth, or one a user adds)."""
+    """Figures 2, 3, 7–11 and tables 6–7 of a study of kind closed_loop (the learned and
+    ground-truth studies, or one a user adds)."""
     input:
         notebook=f"{NOTEBOOKS}/closed_loop.ipynb",
         runs="results/study/runs.parquet",
@@ -62,94 +58,93 @@ rule notebook_closed_loop:
         series=lambda wildcards: example_series(wildcards.study),
     output:
         report(
-            expand("results/figures/{{study}}/{name}.png", name=CLOSED_LOOP_FIGURES),
+            figures("closed_loop", "results/figures/{study}", ".png"),
             caption="../report/closed_loop.rst",
             category="{study} study",
         ),
-        expand("results/figures/{{study}}/{name}.pdf", name=CLOSED_LOOP_FIGURES),
-        expand("results/tables/{{study}}/{name}.{ext}", name=CLOSED_LOOP_TABLES, ext=TABLE_EXTS),
-        notebook="results/notebooks/closed_loop_{study}.ipynb",
-        html="results/notebooks/closed_loop_{study}.html",
+        figures("closed_loop", "results/figures/{study}", ".pdf"),
+        tables("closed_loop", "results/tables/{study}"),
+        notebook="results/notebooks/{study}.ipynb",
+        html="results/notebooks/{study}.html",
     wildcard_constraints:
-        study="|".join(CLOSED_LOOP_STUDIES) or "learned",
+        study=studies_of_kind("closed_loop"),
     params:
         cfg=lambda wildcards: config_json("tracks", "data", "reference", "controllers", "models", "study"),
     conda:
         CAPE_ENV
     log:
-        "results/logs/notebooks/closed_loop_{study}.log",
+        "results/logs/notebooks/{study}.log",
     benchmark:
-        "results/benchmarks/notebooks/closed_loop_{study}.tsv"
+        "results/benchmarks/notebooks/{study}.tsv"
     shell:
-        "papermill {input.notebook} {output.notebook}.part.ipynb --cwd . --no-progress-bar"
-        " -r study {wildcards.study} -r config_json {params.cfg:q}"
-        " -r figure_dir results/figures/{wildcards.study} -r table_dir results/tables/{wildcards.study}"
-        " > {log} 2>&1"
-        " && jupyter nbconvert --to html {output.notebook}.part.ipynb --output-dir results/notebooks"
-        " --output $(basename {output.html} .html) >> {log} 2>&1"
-        " && mv {output.notebook}.part.ipynb {output.notebook}"  # the notebook last: complete
+        run_notebook(
+            "-r study {wildcards.study} -r config_json {params.cfg:q}"
+            " -r figure_dir results/figures/{wildcards.study} -r table_dir results/tables/{wildcards.study}"
+        )
 
 
 rule notebook_bicycle:
-    """Table 5 and figures 5–6: the fixed-parameter bicycle study against the learned EPM."""
+    """Table 5 and figures 5–6 of a study of kind bicycle: its fixed-parameter plants against
+    the paper's study's learned EPM."""
     input:
         notebook=f"{NOTEBOOKS}/bicycle.ipynb",
         summary="results/study/summary.parquet",
     output:
         report(
-            expand("results/figures/bicycle/{name}.png", name=BICYCLE_FIGURES),
+            figures("bicycle", "results/figures/{study}", ".png"),
             caption="../report/bicycle.rst",
-            category="bicycle study",
+            category="{study} study",
         ),
-        expand("results/figures/bicycle/{name}.pdf", name=BICYCLE_FIGURES),
-        multiext("results/tables/bicycle/table05_best_bicycle_controller", ".csv", ".md", ".tex"),
-        notebook="results/notebooks/bicycle.ipynb",
-        html="results/notebooks/bicycle.html",
+        figures("bicycle", "results/figures/{study}", ".pdf"),
+        tables("bicycle", "results/tables/{study}"),
+        notebook="results/notebooks/{study}.ipynb",
+        html="results/notebooks/{study}.html",
+    wildcard_constraints:
+        study=studies_of_kind("bicycle"),
     params:
         cfg=lambda wildcards: config_json("controllers", "models", "study"),
     conda:
         CAPE_ENV
     log:
-        "results/logs/notebooks/bicycle.log",
+        "results/logs/notebooks/{study}.log",
     localrule: True
     shell:
-        "papermill {input.notebook} {output.notebook}.part.ipynb --cwd . --no-progress-bar"
-        " -r config_json {params.cfg:q} -r figure_dir results/figures/bicycle"
-        " -r table_dir results/tables/bicycle > {log} 2>&1"
-        " && jupyter nbconvert --to html {output.notebook}.part.ipynb --output-dir results/notebooks"
-        " --output $(basename {output.html} .html) >> {log} 2>&1"
-        " && mv {output.notebook}.part.ipynb {output.notebook}"  # the notebook last: complete
+        run_notebook(
+            "-r study {wildcards.study} -r config_json {params.cfg:q}"
+            " -r figure_dir results/figures/{wildcards.study} -r table_dir results/tables/{wildcards.study}"
+        )
 
 
 rule notebook_ablation:
-    """Figure 4: internal model vs plant trajectories."""
+    """Figure 4 of a study of kind ablation: internal model against plant trajectories."""
     input:
         notebook=f"{NOTEBOOKS}/ablation.ipynb",
         runs="results/study/runs.parquet",
         raceline=raceline_path(),
-        series=lambda wildcards: example_series("ablation"),
+        series=lambda wildcards: example_series(wildcards.study),
     output:
         report(
-            "results/figures/ablation/fig04_ablation_trajectories.png",
+            figures("ablation", "results/figures/{study}", ".png"),
             caption="../report/fig04.rst",
-            category="ablation",
+            category="{study} study",
         ),
-        "results/figures/ablation/fig04_ablation_trajectories.pdf",
-        notebook="results/notebooks/ablation.ipynb",
-        html="results/notebooks/ablation.html",
+        figures("ablation", "results/figures/{study}", ".pdf"),
+        notebook="results/notebooks/{study}.ipynb",
+        html="results/notebooks/{study}.html",
+    wildcard_constraints:
+        study=studies_of_kind("ablation"),
     params:
         cfg=lambda wildcards: config_json("tracks", "data", "reference", "controllers", "models", "study"),
     conda:
         CAPE_ENV
     log:
-        "results/logs/notebooks/ablation.log",
+        "results/logs/notebooks/{study}.log",
     localrule: True
     shell:
-        "papermill {input.notebook} {output.notebook}.part.ipynb --cwd . --no-progress-bar"
-        " -r config_json {params.cfg:q} -r figure_dir results/figures/ablation > {log} 2>&1"
-        " && jupyter nbconvert --to html {output.notebook}.part.ipynb --output-dir results/notebooks"
-        " --output $(basename {output.html} .html) >> {log} 2>&1"
-        " && mv {output.notebook}.part.ipynb {output.notebook}"  # the notebook last: complete
+        run_notebook(
+            "-r study {wildcards.study} -r config_json {params.cfg:q}"
+            " -r figure_dir results/figures/{wildcards.study}"
+        )
 
 
 rule notebook_failures:
@@ -160,11 +155,11 @@ rule notebook_failures:
         raceline=raceline_path(),
     output:
         report(
-            "results/figures/{study}/fig12_failure_locations.png",
+            figures("failures", "results/figures/{study}", ".png"),
             caption="../report/failures.rst",
             category="{study} study",
         ),
-        "results/figures/{study}/fig12_failure_locations.pdf",
+        figures("failures", "results/figures/{study}", ".pdf"),
         notebook="results/notebooks/failures_{study}.ipynb",
         html="results/notebooks/failures_{study}.html",
     params:
@@ -175,16 +170,14 @@ rule notebook_failures:
         "results/logs/notebooks/failures_{study}.log",
     localrule: True
     shell:
-        "papermill {input.notebook} {output.notebook}.part.ipynb --cwd . --no-progress-bar"
-        " -r study {wildcards.study} -r config_json {params.cfg:q}"
-        " -r figure_dir results/figures/{wildcards.study} > {log} 2>&1"
-        " && jupyter nbconvert --to html {output.notebook}.part.ipynb --output-dir results/notebooks"
-        " --output $(basename {output.html} .html) >> {log} 2>&1"
-        " && mv {output.notebook}.part.ipynb {output.notebook}"  # the notebook last: complete
+        run_notebook(
+            "-r study {wildcards.study} -r config_json {params.cfg:q}"
+            " -r figure_dir results/figures/{wildcards.study}"
+        )
 
 
 rule notebook_scorecard:
-    """Table 8: the paper's headline claims beside ours."""
+    """Table 8: the paper's headline claims beside ours (from the config's paper study)."""
     input:
         notebook=f"{NOTEBOOKS}/scorecard.ipynb",
         runs="results/study/runs.parquet",
@@ -207,11 +200,7 @@ rule notebook_scorecard:
         "results/logs/notebooks/scorecard.log",
     localrule: True
     shell:
-        "papermill {input.notebook} {output.notebook}.part.ipynb --cwd . --no-progress-bar"
-        " -r config_json {params.cfg:q} > {log} 2>&1"
-        " && jupyter nbconvert --to html {output.notebook}.part.ipynb --output-dir results/notebooks"
-        " --output $(basename {output.html} .html) >> {log} 2>&1"
-        " && mv {output.notebook}.part.ipynb {output.notebook}"  # the notebook last: complete
+        run_notebook("-r config_json {params.cfg:q}")
 
 
 rule study:

@@ -17,9 +17,9 @@ import numpy as np
 
 from cape.closedloop.disturbances import DisturbancePipeline
 from cape.closedloop.plants import Plant
-from cape.closedloop.reference import ProgressTracker, ReferenceLine
 from cape.controllers.base import Controller
 from cape.tracks.geometry import cross_track_error, wrap_angle
+from cape.tracks.reference import ProgressTracker, ReferenceLine
 from cape.tracks.track import Track
 
 FAILURES = ("off_track", "timeout", "diverged")

@@ -5,25 +5,26 @@ from __future__ import annotations
 import json
 import math
 import zipfile
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from cape.closedloop.disturbances import DisturbancePipeline
-from cape.closedloop.internal import InternalModel, fixed_internal
 from cape.closedloop.plants import FixedParameterPlant, LearnedPlant, Plant, TruthPlant
-from cape.closedloop.reference import ReferenceLine
 from cape.closedloop.rollout import RolloutResult, run_lap
 from cape.config import section
 from cape.controllers import controller_class
 from cape.controllers.base import Controller, validate_settings
 from cape.controllers.ekf import NoiseLevels
+from cape.controllers.internal import InternalModel, fixed_internal
 from cape.errors import CapeError
 from cape.integrity import check_arrays, check_record
 from cape.models.registry import model_class
 from cape.models.trained import TrainedModel, load_physics, load_trained
+from cape.tracks.reference import ReferenceLine
 from cape.tracks.track import Track, load_raceline, load_track
 from cape.vehicle.params import ACTUATOR_LIMITS, GROUND_TRUTH
 
@@ -70,9 +71,25 @@ def load_reference(config: dict[str, Any], raceline: str | None) -> tuple[Refere
     return ReferenceLine(x, y, speed, settings, ts), track
 
 
-def frozen_phi(models_dir: Path, model_name: str) -> dict[str, float]:
+@dataclass(frozen=True)
+class ModelFolders:
+    """Where each trained model's files are: the folder given for its name (what a workflow
+    rule declares as its inputs), else ``<root>/<name>`` (the command line's ``--models-dir``)."""
+
+    root: Path = Path("results/models")
+    named: Mapping[str, Path] = field(default_factory=dict)
+
+    def __call__(self, name: str) -> Path:
+        return Path(self.named.get(name, Path(self.root) / name))
+
+    @classmethod
+    def of(cls, models: Path | str | ModelFolders) -> ModelFolders:
+        return models if isinstance(models, ModelFolders) else cls(Path(models))
+
+
+def frozen_phi(models: Path | ModelFolders, model_name: str) -> dict[str, float]:
     """The frozen Φ of a trained model (SPEC §4.5), or an error saying how to build it."""
-    path = models_dir / model_name / "frozen_phi.json"
+    path = ModelFolders.of(models)(model_name) / "frozen_phi.json"
     fix = f"delete it and rebuild it with `snakemake --cores 1 {path}`"
     if not path.is_file():
         raise CapeError(f"{path}: missing; build it with `snakemake --cores 1 {path}`")
@@ -92,7 +109,7 @@ def frozen_phi(models_dir: Path, model_name: str) -> dict[str, float]:
 def build_internal(
     config: dict[str, Any],
     name: str,
-    models_dir: Path,
+    models_dir: Path | ModelFolders,
     loaded: dict[str, TrainedModel] | None = None,
 ) -> InternalModel:
     """The controller's internal model by name: a learned model, ``<model>-fixed`` or ``truth``
@@ -108,7 +125,7 @@ def build_internal(
         return fixed_internal(
             physics, {n: truth[n] for n in physics.param_names if n in truth}, source="truth"
         )
-    folder = models_dir / str(model_name)
+    folder = ModelFolders.of(models_dir)(str(model_name))
     if kind == "learned":
         trained = (loaded or {}).get(str(model_name)) or load_trained(
             folder, model_name, section(config, "rollout").get("compile")
@@ -151,11 +168,12 @@ def build_run(
     eta: float,
     seed: int,
     internal: str | None,
-    models_dir: Path,
+    models_dir: Path | ModelFolders,
     raceline: str | None = None,
     validate: bool = True,
 ) -> Run:
     """Everything one run needs, from names; errors name the missing piece and the fix.
+    ``models_dir``: where the trained models' folders are (a root, or a ``ModelFolders``).
     ``validate``: check the controller's settings against its schema (skipped for the config a
     rule passes, which the workflow validated when it started)."""
     models = section(config, "models")
@@ -173,17 +191,18 @@ def build_run(
     disturbances = DisturbancePipeline.from_config(section(config, "disturbances"), eta, seed)
     transform = disturbances.plant_params
     loaded: dict[str, TrainedModel] = {}
+    folders = ModelFolders.of(models_dir)
     if kind == "truth":
         plant: Plant = TruthPlant(GROUND_TRUTH.as_dict(), ts, transform)
     elif kind == "learned":
         trained = load_trained(
-            models_dir / str(model_name), model_name, section(config, "rollout").get("compile")
+            folders(str(model_name)), model_name, section(config, "rollout").get("compile")
         )
         loaded[str(model_name)] = trained
         plant = LearnedPlant(trained, transform)
     else:
-        physics = load_physics(models_dir / str(model_name), expected_name=model_name)
-        plant = FixedParameterPlant(physics, frozen_phi(models_dir, str(model_name)), transform)
+        physics = load_physics(folders(str(model_name)), expected_name=model_name)
+        plant = FixedParameterPlant(physics, frozen_phi(folders, str(model_name)), transform)
     cls = controller_class(controller_name, controllers[controller_name])
     if validate:  # a rule's config was validated when the workflow started
         validate_settings(cls, controller_name, controllers[controller_name])
@@ -192,7 +211,7 @@ def build_run(
     )
     internal_model = None
     if cls.needs_internal_model:
-        internal_model = build_internal(config, internal or default_internal, models_dir, loaded)
+        internal_model = build_internal(config, internal or default_internal, folders, loaded)
     extra: dict[str, Any] = {}
     if cls.needs_noise_levels:
         extra["levels"] = NoiseLevels.from_pipeline(disturbances)

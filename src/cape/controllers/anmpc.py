@@ -19,12 +19,12 @@ from typing import Any, ClassVar
 import casadi as ca
 import numpy as np
 
-from cape.closedloop.internal import N_STATE
-from cape.closedloop.reference import ReferencePoints
 from cape.controllers.base import require
+from cape.controllers.internal import N_STATE
 from cape.controllers.nmpc import NMPC_SCHEMA, NominalNMPC
 from cape.controllers.registry import register_controller
 from cape.tracks.geometry import Projection
+from cape.tracks.reference import ReferencePoints
 
 
 @register_controller("anmpc")

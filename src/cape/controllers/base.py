@@ -13,8 +13,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from cape.closedloop.reference import ReferenceLine, ReferencePoints
 from cape.tracks.geometry import Projection
+from cape.tracks.reference import ReferenceLine, ReferencePoints
 from cape.vehicle.params import ActuatorLimits
 
 

@@ -18,7 +18,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from cape.closedloop.internal import InternalModel
+from cape.controllers.internal import InternalModel
 from cape.tracks.geometry import wrap_angle
 
 N_EKF = 6

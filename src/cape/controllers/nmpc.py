@@ -25,14 +25,14 @@ from typing import Any, ClassVar
 import casadi as ca
 import numpy as np
 
-from cape.closedloop.internal import N_STATE
-from cape.closedloop.reference import ReferencePoints
 from cape.controllers.base import GAINS, Controller, PIDLoop, require
+from cape.controllers.internal import N_STATE
 from cape.controllers.registry import register_controller
 from cape.controllers.shooting import MultipleShootingNLP, ipopt_options, sqpmethod_options
 from cape.controllers.sqp import CondensedSQP
 from cape.errors import CapeError
 from cape.tracks.geometry import Projection
+from cape.tracks.reference import ReferencePoints
 
 N_INPUT = 2
 SETTINGS = (

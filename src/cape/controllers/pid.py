@@ -17,10 +17,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from cape.closedloop.reference import ReferencePoints
 from cape.controllers.base import GAINS, Controller, PIDLoop, preview_pose, require
 from cape.controllers.registry import register_controller
 from cape.tracks.geometry import Projection, cross_track_error, wrap_angle
+from cape.tracks.reference import ReferencePoints
 
 SETTINGS = ("speed", "heading", "cross_track", "lookahead", "preview")
 

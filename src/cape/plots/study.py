@@ -5,10 +5,12 @@ data frames and returns a figure; the notebooks only choose what to draw and sav
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from cape.closedloop.disturbances import STAGES, source_class, source_entries
 from cape.closedloop.rollout import FAILURES
 from cape.plots.style import plt
 from cape.plots.tracks import closed, draw_track
@@ -335,24 +337,37 @@ def controller_looks(controllers: Sequence[str]) -> tuple[dict[str, object], dic
     return styles, {c: f"C{i % 10}" for i, c in enumerate(controllers)}
 
 
-def block_diagram() -> plt.Figure:
-    """Figure 1: the closed loop of every run (SPEC §5), with where η enters."""
+def block_diagram(disturbances: Mapping[str, Any]) -> plt.Figure:
+    """Figure 1: the closed loop of every run (SPEC §5), with where η enters: each disturbance
+    source of the config (its class's ``label``) in the box of the loop it acts at."""
+    at: dict[str, list[str]] = {stage: [] for stage in STAGES}
+    for name, entry in source_entries(disturbances).items():
+        cls = source_class(name, entry)
+        for stage in cls.stages:
+            at[stage].append(cls.label)
+
+    def listed(stage: str, empty: str) -> str:
+        return ",\n".join(at[stage]) + " (η > 0)" if at[stage] else empty
+
     fig, ax = plt.subplots(figsize=(11, 3.4))
     ax.set_xlim(0, 11)
     ax.set_ylim(0, 3.4)
     ax.axis("off")
     w, h, top = 1.55, 0.95, 1.9
+    plant = "plant\nlearned · fixed · truth"
+    if at["plant"]:
+        plant += f"\n({', '.join(at['plant'])} at η > 0)"
     row = [
         ("reference", "reference\n(raceline, §5.2)"),
         ("controller", "controller\nPID · RISE · NMPC\n(internal model, §7)"),
-        ("delay", "steering delay\n(η > 0)"),
-        ("plant", "plant\nlearned · fixed · truth\n(mismatch at η > 0)"),
-        ("process", "process noise,\ncrosswind (η > 0)"),
+        ("delay", listed("actuation", "actuators")),
+        ("plant", plant),
+        ("process", listed("after_plant", "(no process\ndisturbance)")),
     ]
     gap = (11 - 0.2 - len(row) * w) / (len(row) - 1)
     boxes = {key: (0.1 + i * (w + gap), top) for i, (key, _) in enumerate(row)}
     boxes["measure"] = (4.4, 0.25)
-    texts = dict(row, measure="measurement noise,\nIMU bias (η > 0)")
+    texts = dict(row, measure=listed("measurement", "measurement"))
     for key, (x, y) in boxes.items():
         width = 2.2 if key == "measure" else w
         ax.add_patch(plt.Rectangle((x, y), width, h, fc="#eef3fb", ec="black", lw=1))

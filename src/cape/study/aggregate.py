@@ -1,8 +1,8 @@
 """Every run's metrics in one tidy table (``runs.parquet``), and summaries over seeds.
 
-A run is identified by (study, plant, internal, controller, eta, seed); its folder
-``<root>/<study>/<plant>/<internal>/<controller>/eta<η>/seed<s>/`` holds ``metrics.json`` and
-``timing.json``. Summaries group the seeds of one cell: the mean of a metric with its 95 %
+A run is identified by (study, plant, internal, controller, eta, seed) (``cape.study.grid.RunId``,
+which also names its folder); its ``metrics.json`` records them all, and ``timing.json`` beside
+it the solve times. Summaries group the seeds of one cell: the mean of a metric with its 95 %
 confidence interval (Student's t over the seeds), the success rate, and the failure-penalised
 means of SPEC §5.3 (a failed run counts with the penalty values).
 
@@ -48,13 +48,17 @@ METRICS = [
 ]
 
 
-def read_run(metrics_path: Path, study: str) -> dict:
-    """One row of ``study``: the run's metrics and its timing (a run shared by two studies is
-    read once per study)."""
+def read_run(metrics_path: Path, study: str | None = None) -> dict:
+    """One row of ``study`` (default: the study the run's metrics.json records): the run's
+    metrics and its timing (a run shared by two studies is read once per study)."""
     try:
         metrics = json.loads(metrics_path.read_text())
     except (OSError, json.JSONDecodeError) as exc:
         raise CapeError(f"{metrics_path}: unreadable run metrics ({exc}); rerun that run") from None
+    if study is None:
+        study = metrics.get("study")
+        if not isinstance(study, str):
+            raise CapeError(f"{metrics_path}: no `study` in the run's metrics; rerun that run")
     timing_path = metrics_path.with_name("timing.json")
     timing = json.loads(timing_path.read_text()) if timing_path.is_file() else {}
     timing = {k: v for k, v in timing.items() if k.startswith("solve_ms")}
@@ -65,16 +69,22 @@ def read_run(metrics_path: Path, study: str) -> dict:
     return row
 
 
-def collect_runs(runs: Iterable[tuple[str, Path]], studies: Mapping[str, Any]) -> pd.DataFrame:
-    """The tidy table of the given runs ((study, metrics.json) pairs), sorted by its keys.
+def collect_runs(
+    runs: Iterable[tuple[str | None, Path]], studies: Mapping[str, Any]
+) -> pd.DataFrame:
+    """The tidy table of the given runs ((study, metrics.json) pairs; a study of None: the one
+    the run records), sorted by its keys.
     ``model`` names the model a run is about: the internal model in a study that varies it (the
     ground-truth study), else the plant's; ``studies`` is the config's ``study.studies``."""
     rows = [read_run(Path(path), study) for study, path in runs]
     if not rows:
         raise CapeError("no runs to aggregate")
     frame = pd.DataFrame(rows)
-    varies_internal = frame["study"].map(
-        lambda s: bool(studies.get(s, {}).get("internal")) and s != "ablation"
+    varies_internal = frame["study"].map(  # the ground-truth study's kind, not the ablation's
+        lambda s: (
+            bool(studies.get(s, {}).get("internal"))
+            and studies.get(s, {}).get("kind", "closed_loop") != "ablation"
+        )
     )
     frame["model"] = frame["internal"].where(varies_internal, frame["plant"])
     first = [*KEYS, "model", "eta_label", "success", "failure", "steps"]

@@ -13,6 +13,7 @@ folder of the first study of the config that has it (``canonical``), and both st
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,25 +33,47 @@ class RunId:
     eta: str
     seed: int
 
+    def parts(self) -> tuple[str, ...]:
+        """The run's folder names, root to leaf: the one place the layout is spelled."""
+        return (self.study, self.plant, self.internal, self.controller, f"eta{self.eta}",
+                f"seed{self.seed}")  # fmt: skip
+
     def folder(self, root: str | Path = RUNS_ROOT) -> Path:
         """The run's folder under ``root``."""
-        return (
-            Path(root) / self.study / self.plant / self.internal / self.controller
-            / f"eta{self.eta}" / f"seed{self.seed}"
-        )  # fmt: skip
+        return Path(root, *self.parts())
+
+    def stem(self) -> str:
+        """The run as one file name (its figure's): the folder names joined by ``_``."""
+        return "_".join(self.parts())
+
+    @classmethod
+    def glob(cls) -> str:
+        """A glob of every run folder under a root: ``*`` for each field."""
+        return re.sub(r"\{\w+\}", "*", str(cls.wildcards().folder(".")))
+
+    @classmethod
+    def wildcards(cls) -> RunId:
+        """The run of a workflow rule: every field a Snakemake wildcard of the same name."""
+        return cls("{study}", "{plant}", "{internal}", "{controller}", "{eta}", "{seed}")  # type: ignore[arg-type]
 
     @classmethod
     def parse(cls, path: str | Path) -> RunId:
-        """The run whose folder (or a file in it) is ``path``."""
+        """The run whose folder (or a file in it) is ``path``: ``parts`` read backwards."""
         path = Path(path)
-        if path.name.startswith("seed") is False:
+        templates = cls.wildcards().parts()
+        if not path.name.startswith(templates[-1].split("{")[0]):  # a file in the folder
             path = path.parent
-        parts = path.parts[-6:]
-        if len(parts) != 6 or not parts[4].startswith("eta") or not parts[5].startswith("seed"):
-            raise ValueError(f"{path}: not a run folder (…/<study>/<plant>/<internal>/"
-                             "<controller>/eta<η>/seed<s>)")  # fmt: skip
-        study, plant, internal, controller, eta, seed = parts
-        return cls(study, plant, internal, controller, eta[3:], int(seed[4:]))
+        names = path.parts[-len(templates) :]
+        fields: dict[str, str] = {}
+        for template, name in zip(templates, names, strict=False):
+            prefix, field = template[: template.index("{")], template[template.index("{") + 1 : -1]
+            if not name.startswith(prefix):
+                break
+            fields[field] = name[len(prefix) :]
+        if len(fields) != len(templates) or not fields["seed"].isdigit():
+            layout = "/".join(templates).replace("{", "<").replace("}", ">")
+            raise ValueError(f"{path}: not a run folder (…/{layout})")
+        return cls(**{**fields, "seed": int(fields["seed"])})  # type: ignore[arg-type]
 
     def same_run(self) -> tuple[str, str, str, str, int]:
         """What the run's result depends on: everything but the study."""

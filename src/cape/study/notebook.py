@@ -12,8 +12,10 @@ from typing import Any
 import pandas as pd
 
 from cape.config import config_from_args
+from cape.errors import CapeError
 from cape.plots.style import save_figure
 from cape.study.grid import RunId
+from cape.study.outputs import declared
 from cape.tables import write_table
 
 
@@ -60,8 +62,19 @@ def _number(value: Any) -> str:
     return f"{value:.4g}" if isinstance(value, float) else str(value)
 
 
+def _declared(stem: str) -> None:
+    """A figure or table must be declared in cape.study.outputs (what the rules build)."""
+    name = Path(stem).name
+    if not declared(name):
+        raise CapeError(
+            f"{name}: not declared in cape/study/outputs.py; add it to its notebook's entry "
+            "there, so that the workflow knows the file"
+        )
+
+
 def save_table(frame: pd.DataFrame, stem: str, latex: bool = True) -> None:
     """``stem``.csv (full precision) and .md (and .tex, four significant digits), atomically."""
+    _declared(stem)
     paths = [f"{stem}.csv", f"{stem}.md"] + ([f"{stem}.tex"] if latex else [])
     floats = frame.select_dtypes("number").columns
     write_table(frame, paths, formats=dict.fromkeys(floats, _number))
@@ -69,5 +82,6 @@ def save_table(frame: pd.DataFrame, stem: str, latex: bool = True) -> None:
 
 def save(fig: Any, stem: str) -> None:
     """``stem``.pdf and .png."""
+    _declared(stem)
     Path(stem).parent.mkdir(parents=True, exist_ok=True)
     save_figure(fig, f"{stem}.pdf", f"{stem}.png")

@@ -8,6 +8,7 @@ from typing import Any
 
 import pandas as pd
 
+from cape.closedloop.disturbances import is_active, source_class, source_entries
 from cape.closedloop.rollout import FAILURES as FAILURE_REASONS
 
 PRESENTATION = ("module", "type", "label", "color")
@@ -38,29 +39,18 @@ def controller_parameters(controllers: Mapping[str, Any]) -> pd.DataFrame:
 
 
 def uncertainty_activation(disturbances: Mapping[str, Any]) -> pd.DataFrame:
-    """Table 3: which source is active at each η of the grid, with its size there."""
+    """Table 3: which source is active at each η of the grid, with its size there: a column
+    per source of the config (its class's ``column``, its ``cell``), in the config's order."""
+    entries = source_entries(disturbances)
+    classes = {name: source_class(name, entry) for name, entry in entries.items()}
     rows = []
     for label in disturbances["eta"]:
         eta = float(label)
-
-        def on(name: str, eta: float = eta) -> bool:
-            return eta > float(disturbances[name].get("active_from", 0.0))
-
-        mn, pn = disturbances["measurement_noise"], disturbances["process_noise"]
-        rows.append(
-            {
-                "η": label,
-                "measurement noise σ (%)": f"{100 * eta * mn['sigma_per_eta']:.1f}"
-                if on("measurement_noise") else "–",
-                "process noise σ (%)": f"{100 * eta * pn['sigma_per_eta']:.1f}"
-                if on("process_noise") else "–",
-                "steering delay (steps)": disturbances["steering_delay"]["steps"]
-                if on("steering_delay") else "–",
-                "IMU bias drift": "✓" if on("imu_bias") else "–",
-                "crosswind": "✓" if on("crosswind") else "–",
-                "parameter mismatch": "✓" if on("mismatch") else "–",
-            }
-        )  # fmt: skip
+        row: dict[str, Any] = {"η": label}
+        for name, entry in entries.items():
+            cls = classes[name]
+            row[cls.column] = cls.cell(entry, eta) if is_active(entry, eta) else "–"
+        rows.append(row)
     return pd.DataFrame(rows)
 
 

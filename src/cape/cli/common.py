@@ -1,0 +1,125 @@
+"""What the ``cape`` commands share: the registry of commands and the common arguments."""
+
+from __future__ import annotations
+
+import time
+
+STARTED = time.perf_counter()  # as the process starts: a rollout reports its own start-up
+
+import argparse  # noqa: E402
+from collections.abc import Callable  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+from cape.errors import CapeError  # noqa: E402
+
+Arguments = Callable[[argparse.ArgumentParser], None]
+Command = Callable[[argparse.Namespace], None]
+COMMANDS: dict[str, tuple[str, Arguments, Command]] = {}
+"""Command name → (help, its arguments, the function), in the order they are listed."""
+
+
+def command(name: str, help: str, arguments: Arguments) -> Callable[[Command], Command]:
+    """Register ``func`` as ``cape NAME``, with the arguments ``arguments`` adds."""
+
+    def register(func: Command) -> Command:
+        COMMANDS[name] = (help, arguments, func)
+        return func
+
+    return register
+
+
+def _add_config_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--config",
+        metavar="FILE",
+        help="YAML config to read (default: config/config.yaml)",
+    )
+    parser.add_argument(
+        "--config-json",
+        metavar="JSON",
+        help="config sections as a JSON object (how the workflow passes them); overrides --config",
+    )
+
+
+def _add_tracks_dir(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--tracks-dir", help="folder of the verified track files (default: config tracks.dir)"
+    )
+
+
+def _add_outputs(parser: argparse.ArgumentParser, flag: str, what: str) -> None:
+    """A repeatable output flag: one file per format (the suffix chooses it)."""
+    parser.add_argument(
+        flag, action="append", required=True, metavar="PATH", help=f"{what} (repeat)"
+    )
+
+
+def _add_models(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--model", action="append", required=True, metavar="NAME=DIR", help="trained model (repeat)"
+    )
+
+
+def _add_model_folders(parser: argparse.ArgumentParser) -> None:
+    """Where a run's trained models are: ``--model NAME=DIR`` for the ones the workflow's rule
+    declares as inputs, else ``--models-dir``/NAME."""
+    parser.add_argument(
+        "--model",
+        action="append",
+        default=[],
+        metavar="NAME=DIR",
+        help="folder of a trained model this run reads (repeat; default: MODELS_DIR/NAME)",
+    )
+    parser.add_argument(
+        "--models-dir", default="results/models", help="folder of the trained models' folders"
+    )
+
+
+def _model_folders(args: argparse.Namespace) -> Any:
+    from cape.closedloop.setup import ModelFolders
+
+    named = {}
+    for item in args.model:
+        name, sep, folder = item.partition("=")
+        if not sep or not name or not folder:
+            raise CapeError(f"--model {item}: expected NAME=DIR, e.g. epm=results/models/epm")
+        named[name] = Path(folder)
+    return ModelFolders(Path(args.models_dir), named)
+
+
+def _entry(name: str, entries: Any, option: str, field: str) -> Any:
+    """The config entry ``name`` of ``entries`` (the section ``field``), or an error naming the
+    option, the field and the names it has."""
+    if name not in entries:
+        raise CapeError(f"{option} {name}: not in the config's `{field}` "
+                        f"({', '.join(sorted(entries))})")  # fmt: skip
+    return entries[name]
+
+
+def _config(args: argparse.Namespace) -> dict[str, Any]:
+    from cape.config import config_from_args
+
+    return config_from_args(args.config, args.config_json)
+
+
+def _load_npz(path: str) -> dict[str, Any]:
+    import numpy as np
+
+    if not Path(path).is_file():
+        raise CapeError(f"{path}: not found; build it with `snakemake --cores 2 {path}`")
+    with np.load(path) as npz:
+        return {k: npz[k] for k in npz.files}
+
+
+def _load_models(items: list[str]) -> dict[str, Any]:
+    """``NAME=DIR`` pairs → trained models, in the order given."""
+    from cape.models.checkpoint import load_model
+
+    models = {}
+    for item in items:
+        name, sep, folder = item.partition("=")
+        if not sep:
+            raise CapeError(f"--model {item}: expected NAME=FOLDER, e.g. epm=results/models/epm")
+        models[name] = load_model(folder, expected_name=name)
+    return models

@@ -1,0 +1,177 @@
+"""``cape tracks``, ``data``, ``plot-tracks``, ``raceline``: the track files, the BayesRace
+data sets and CAPE's reference raceline (SPEC §2–§3).
+
+Each command's arguments are defined right above it (``@command``)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from cape.cli.common import (
+    _add_config_args,
+    _add_outputs,
+    _add_tracks_dir,
+    _config,
+    _entry,
+    command,
+)
+from cape.errors import CapeError
+
+
+def _tracks_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--dest", help="destination folder (default: config tracks.dir)")
+    p.add_argument(
+        "--mirror", help="local folder holding the files (default: config tracks.mirror)"
+    )
+    p.add_argument("--url", help="URL template with {commit} and {file}; '' disables download")
+    _add_config_args(p)
+
+
+@command("tracks", "obtain and verify the BayesRace track files (SPEC §2)", _tracks_arguments)
+def cmd_tracks(args: argparse.Namespace) -> None:
+    from cape.config import section
+    from cape.tracks.fetch import obtain_tracks
+
+    cfg = section(_config(args), "tracks")
+    mirror = args.mirror if args.mirror is not None else cfg.get("mirror")
+    dest = Path(args.dest or cfg["dir"])
+    obtain_tracks(
+        dest=dest,
+        mirror=Path(mirror) if mirror else None,
+        url_template=cfg["upstream_url"] if args.url is None else (args.url or None),
+        timeout=float(cfg.get("download_timeout", 30)),
+    )
+    print(f"all track files verified in {dest}")
+
+
+def _data_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--track", required=True, help="track name, e.g. ETHZ or ETHZMobil")
+    p.add_argument("--out", required=True, help="output .npz path")
+    _add_tracks_dir(p)
+    _add_config_args(p)
+
+
+@command("data", "generate a DYN-PP data set by the BayesRace protocol (SPEC §3)", _data_arguments)
+def cmd_data(args: argparse.Namespace) -> None:
+    from cape.config import section
+    from cape.data.bayesrace import ProtocolSettings, generate_dataset
+    from cape.io import save_npz
+    from cape.tracks.track import load_raceline
+    from cape.vehicle.params import GROUND_TRUTH
+
+    config = _config(args)
+    data_cfg = section(config, "data")
+    track_cfg = _entry(args.track, data_cfg["tracks"], "--track", "data.tracks")
+    tracks_dir = Path(args.tracks_dir or section(config, "tracks")["dir"])
+    settings = ProtocolSettings.from_config(data_cfg, args.track)
+    raceline = load_raceline(tracks_dir, track_cfg["raceline"])
+    dataset = generate_dataset(raceline, GROUND_TRUTH, settings)
+    save_npz(args.out, **dataset)
+    print(f"wrote {args.out}: " + ", ".join(f"{k} {v.shape}" for k, v in dataset.items()))
+
+
+def _plot_tracks_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--data",
+        action="append",
+        required=True,
+        metavar="TRACK=PATH",
+        help="a data set to draw (repeat)",
+    )
+    _add_outputs(p, "--out", "output file, .pdf or .png")
+    _add_tracks_dir(p)
+    _add_config_args(p)
+
+
+@command(
+    "plot-tracks", "figure of the tracks, racelines and generated data", _plot_tracks_arguments
+)
+def cmd_plot_tracks(args: argparse.Namespace) -> None:
+    import numpy as np
+
+    from cape.config import section
+    from cape.plots.style import save_figure
+    from cape.plots.tracks import TrackPanel, plot_tracks
+    from cape.tracks.track import load_raceline, load_track
+
+    config = _config(args)
+    catalogue = section(config, "tracks")["catalogue"]
+    data_tracks = section(config, "data")["tracks"]
+    tracks_dir = Path(args.tracks_dir or config["tracks"]["dir"])
+    panels = []
+    for item in args.data:
+        name, sep, path = item.partition("=")
+        if not sep or name not in catalogue or name not in data_tracks:
+            raise CapeError(
+                f"--data {item}: expected TRACK=PATH with TRACK one of {sorted(data_tracks)}"
+            )
+        entry = catalogue[name]
+        with np.load(path) as npz:
+            dataset = {k: npz[k] for k in npz.files}
+        panels.append(
+            TrackPanel(
+                track=load_track(tracks_dir, name, entry["prefix"], entry["width"]),
+                raceline=load_raceline(tracks_dir, data_tracks[name]["raceline"]),
+                dataset=dataset,
+            )
+        )
+    save_figure(plot_tracks(panels), *args.out)
+    print("wrote " + ", ".join(args.out))
+
+
+def _raceline_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--track", required=True, help="track name from `tracks.catalogue`")
+    p.add_argument("--out", required=True, help="output .npz (x, y, speed, s, heading, curvature)")
+    p.add_argument(
+        "--figure", action="append", metavar="PATH", help="figure beside BayesRace's (repeat)"
+    )
+    _add_tracks_dir(p)
+    _add_config_args(p)
+
+
+@command("raceline", "CAPE's minimum-curvature reference raceline (SPEC §2)", _raceline_arguments)
+def cmd_raceline(args: argparse.Namespace) -> None:
+    import numpy as np
+
+    from cape.config import section
+    from cape.integrity import sealed_arrays
+    from cape.io import save_npz
+    from cape.plots.style import save_figure
+    from cape.plots.tracks import plot_raceline
+    from cape.tracks.raceline import build_raceline, lap_time
+    from cape.tracks.track import load_raceline, load_track
+    from cape.vehicle.params import ACTUATOR_LIMITS, GROUND_TRUTH
+
+    config = _config(args)
+    settings = section(config, "reference")
+    catalogue = section(config, "tracks")["catalogue"]
+    entry = _entry(args.track, catalogue, "--track", "tracks.catalogue")
+    tracks_dir = Path(args.tracks_dir or config["tracks"]["dir"])
+    track = load_track(tracks_dir, args.track, entry["prefix"], entry["width"])
+    line = build_raceline(track, settings, GROUND_TRUTH, ACTUATOR_LIMITS)
+    path = line.path
+    scaled = np.clip(settings["scale"] * line.speed, settings["v_min"], settings["v_max"])
+    ideal = float(np.sum(path.segment_lengths / scaled))
+    save_npz(
+        args.out,
+        **sealed_arrays({
+            "x": line.x,
+            "y": line.y,
+            "speed": line.speed,
+            "s": path.s_points,
+            "heading": path.heading(path.s_points),
+            "curvature": path.curvature(path.s_points),
+        }),
+    )  # fmt: skip
+    title = (
+        f"{args.track}: CAPE raceline {path.length:.2f} m; ideal lap {lap_time(line):.2f} s at "
+        f"v_path,\n{ideal:.2f} s at the reference speed (scale {settings['scale']}, "
+        f"clipped to [{settings['v_min']}, {settings['v_max']}] m/s)"
+    )
+    print(title)
+    if args.figure:
+        bayesrace = load_raceline(tracks_dir, f"{entry['prefix']}_raceline.npz")
+        save_figure(
+            plot_raceline(track, line.x, line.y, line.speed, bayesrace, title), *args.figure
+        )

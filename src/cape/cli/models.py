@@ -1,0 +1,327 @@
+"""``cape train``, ``freeze``, ``export-network``, ``openloop``, ``complexity``,
+``plot-models``: the learned models and their tables and figures (SPEC §4).
+
+Each command's arguments are defined right above it (``@command``)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from cape.cli.common import (
+    _add_config_args,
+    _add_models,
+    _add_outputs,
+    _config,
+    _load_models,
+    _load_npz,
+    command,
+)
+from cape.errors import CapeError
+
+
+def _model_spec(config: dict[str, Any], name: str) -> dict[str, Any]:
+    from cape.config import section
+
+    models = section(config, "models")
+    if name not in models:
+        raise CapeError(
+            f"--model {name}: not in the config's `models` ({', '.join(sorted(models))})"
+        )
+    return models[name]
+
+
+def _colors_labels(
+    config: dict[str, Any], names: list[str]
+) -> tuple[dict[str, str], dict[str, str]]:
+    from cape.config import section
+
+    models = section(config, "models")
+    colors = {n: models.get(n, {}).get("color", f"C{i}") for i, n in enumerate(names)}
+    labels = {n: models.get(n, {}).get("label", n.upper()) for n in names}
+    return colors, labels
+
+
+def _train_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--model", required=True, help="model name from the config's `models` (dpm, ddm, epm, ...)"
+    )
+    p.add_argument("--data", required=True, help="training data set (.npz)")
+    p.add_argument("--out", required=True, help="output folder for model.pt, meta.json, loss.csv")
+    p.add_argument("--epochs", type=int, help="override the config's epoch count (smoke runs)")
+    p.add_argument("--seed", type=int, help="override training.seed")
+    p.add_argument("--threads", type=int, help="override training.threads")
+    _add_config_args(p)
+
+
+@command("train", "train a learned model on the ETHZ windows (SPEC §4)", _train_arguments)
+def cmd_train(args: argparse.Namespace) -> None:
+    import hashlib
+
+    import numpy as np
+    import torch
+
+    from cape.config import section
+    from cape.io import write_text
+    from cape.models.checkpoint import save_model
+    from cape.models.training import TrainingData, train_model
+
+    config = _config(args)
+    spec = _model_spec(config, args.model)
+    data_cfg, train_cfg = section(config, "data"), section(config, "training")
+    seed = int(args.seed if args.seed is not None else train_cfg["seed"])
+    data_path = Path(args.data)
+    if not data_path.is_file():
+        raise CapeError(
+            f"--data {data_path}: not found; build it with `snakemake --cores 2 {data_path}`"
+        )
+    with np.load(data_path) as npz:
+        dataset = {k: npz[k] for k in npz.files}
+    split = data_cfg["split"]
+    data = TrainingData.from_dataset(
+        dataset, int(spec["history"]), float(split["train_fraction"]), int(split["seed"])
+    )
+    threads = int(args.threads or train_cfg["threads"])
+    print(
+        f"training {args.model}: {len(data.train)} training / {len(data.val)} validation "
+        f"windows, seed {seed}"
+    )
+    result = train_model(
+        args.model,
+        spec,
+        data,
+        ts=float(data_cfg["ts"]),
+        seed=seed,
+        epochs=args.epochs,
+        threads=threads,
+        fused=bool(train_cfg.get("fused_adam", True)),
+    )
+    out = Path(args.out)
+    meta = {
+        "seed": seed,
+        "epochs": len(result.losses),
+        "best_epoch": result.best_epoch,
+        "best_val_loss": result.best_val_loss,
+        "wall_seconds": result.wall_seconds,
+        "threads": threads,
+        "split": split,
+        "scaler": data.scaler.to_dict(),
+        "data_file": str(data_path),
+        "data_sha256": hashlib.sha256(data_path.read_bytes()).hexdigest(),
+        "torch_version": torch.__version__,
+    }
+    save_model(result.model, out, meta)
+    rows = ["epoch,train_loss,val_loss"] + [
+        f"{r['epoch']},{r['train_loss']:.17g},{r['val_loss']:.17g}" for r in result.losses
+    ]
+    write_text(out / "loss.csv", "\n".join(rows) + "\n")
+    print(
+        f"{args.model}: best validation MSE {result.best_val_loss:.4e} "
+        f"at epoch {result.best_epoch} "
+        f"of {len(result.losses)}; {result.wall_seconds:.1f} s; saved to {out}"
+    )
+
+
+def _freeze_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--model", required=True, metavar="NAME=DIR", help="trained model")
+    p.add_argument("--data", required=True, help="training data set (.npz)")
+    p.add_argument("--out", required=True, help="output .json")
+    _add_config_args(p)
+
+
+@command(
+    "freeze",
+    "median Φ over the training windows, for the fixed-parameter plants (SPEC §4.5)",
+    _freeze_arguments,
+)
+def cmd_freeze(args: argparse.Namespace) -> None:
+    import json
+
+    from cape.config import section
+    from cape.integrity import sealed_record
+    from cape.io import write_text
+    from cape.models.evaluate import frozen_parameters
+    from cape.models.training import TrainingData
+
+    config = _config(args)
+    split = section(config, "data")["split"]
+    ((name, model),) = _load_models([args.model]).items()
+    data = TrainingData.from_dataset(
+        _load_npz(args.data), model.history, float(split["train_fraction"]), int(split["seed"])
+    )
+    frozen = frozen_parameters(model, data.train)
+    payload = sealed_record({
+        "model": name,
+        "source": "median of Φ over the ETHZ training windows (SPEC §4.5)",
+        "phi": frozen,
+    })  # fmt: skip
+    write_text(args.out, json.dumps(payload, indent=2) + "\n")
+    print(f"wrote {args.out}: " + ", ".join(f"{k}={v:.4g}" for k, v in frozen.items()))
+
+
+def _export_network_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--model", required=True, metavar="NAME=DIR", help="trained model")
+    p.add_argument("--out", help="output .npz (default: DIR/network.npz)")
+    _add_config_args(p)
+
+
+@command(
+    "export-network",
+    "export a trained network to network.npz, which the closed loop runs without PyTorch",
+    _export_network_arguments,
+)
+def cmd_export_network(args: argparse.Namespace) -> None:
+    from cape.models.checkpoint import export_network
+
+    name, sep, folder = args.model.partition("=")
+    if not sep:
+        raise CapeError(f"--model {args.model}: expected NAME=FOLDER, e.g. epm=results/models/epm")
+    out = export_network(folder, args.out, expected_name=name)
+    print(f"wrote {out}: the {name} network for the NumPy closed loop")
+    compile_settings = _config(args).get("rollout", {}).get("compile")
+    if compile_settings and compile_settings.get("enabled", False):
+        import numpy as np
+
+        from cape.models.network import load_network
+
+        network = load_network(out, compile_settings)
+        network.phi(np.zeros((network.history, 7)))  # builds and caches the compiled GRU
+        print("compiled its GRU into the cache " + str(compile_settings.get("cache")))
+
+
+def _openloop_arguments(p: argparse.ArgumentParser) -> None:
+    _add_models(p)
+    p.add_argument(
+        "--train-data", required=True, help="ETHZ data set (.npz), for its validation split"
+    )
+    p.add_argument("--test-data", required=True, help="ETHZMobil data set (.npz)")
+    _add_outputs(p, "--out", ".csv, .md or .tex")
+    _add_config_args(p)
+
+
+@command("openloop", "open-loop error table of trained models (SPEC §4.4)", _openloop_arguments)
+def cmd_openloop(args: argparse.Namespace) -> None:
+    import numpy as np
+
+    from cape.config import section
+    from cape.models.evaluate import rear_slip
+    from cape.models.report import openloop_table
+    from cape.tables import write_table
+
+    config = _config(args)
+    horizon = int(section(config, "training").get("multistep_horizon", 15))
+    train, test = _load_npz(args.train_data), _load_npz(args.test_data)
+    table = openloop_table(
+        _load_models(args.model), train, test, section(config, "data")["split"], horizon
+    )
+    slip_train, slip_test = rear_slip(train), rear_slip(test)
+    caption = (
+        "Open-loop error of the learned models: one-step RMSE on the ETHZ validation split and on "
+        f"ETHZMobil, mean absolute error after {horizon} open-loop steps on ETHZMobil, and the "
+        "paper's one-step RMSE (vx, vy in m/s, ω in rad/s). ETHZMobil is an extrapolation: its "
+        f"rear slip angle reaches {slip_test.max():.2f} rad (99th percentile "
+        f"{np.percentile(slip_test, 99):.2f}) against {np.percentile(slip_train, 99):.2f} rad "
+        "(99th percentile) in the ETHZ training data, so a model whose rear tyre is right only "
+        "within ETHZ's range errs there (docs/models.md). ETHZMobil ω RMSE over the paper's: "
+        + ", ".join(
+            f"{row['model'].upper()} {row['test_rmse_omega'] / row['paper_rmse_omega']:.2g}×"
+            for _, row in table.iterrows()
+            if np.isfinite(row["paper_rmse_omega"])
+        )
+        + "."
+    )
+    write_table(
+        table, args.out, formats={c: ".3e" for c in table.columns if c != "model"}, caption=caption
+    )
+    print(table.to_string(index=False))
+
+
+def _complexity_arguments(p: argparse.ArgumentParser) -> None:
+    _add_models(p)
+    p.add_argument("--data", required=True, help="data set whose windows are timed (.npz)")
+    _add_outputs(p, "--out", ".csv, .md or .tex")
+    _add_config_args(p)
+
+
+@command(
+    "complexity", "model complexity and inference time table (SPEC §4.4)", _complexity_arguments
+)
+def cmd_complexity(args: argparse.Namespace) -> None:
+    import torch
+
+    from cape.config import section
+    from cape.data.windows import make_windows
+    from cape.models.report import complexity_table
+    from cape.tables import write_table
+
+    config = _config(args)
+    torch.set_num_threads(1)
+    models = _load_models(args.model)
+    data = _load_npz(args.data)
+    windows = {name: make_windows(data, m.history).features[100] for name, m in models.items()}
+    repeats = int(section(config, "training").get("inference_repeats", 2000))
+    table = complexity_table(models, windows, repeats)
+    formats = {"params_M": ".4f", "size_MB": ".2f", "flops_M": ".3f", "inference_ms": ".3f"}
+    formats.update({f"paper_{k}": v for k, v in formats.items()})
+    caption = (
+        "Model complexity and inference efficiency: parameters (millions), float32 size (MiB), "
+        "layers, FLOPs per prediction (millions, counted by PyTorch's flop counter) and the "
+        "median time of one single-window Φ prediction on the fast path (ms, this CPU, 1 thread)."
+    )
+    write_table(table, args.out, formats=formats, caption=caption)
+    print(table.to_string(index=False))
+
+
+def _plot_models_arguments(p: argparse.ArgumentParser) -> None:
+    _add_models(p)
+    p.add_argument("--data", required=True, help="ETHZMobil data set (.npz)")
+    _add_outputs(p, "--phi-out", "Φ figure, .pdf or .png")
+    _add_outputs(p, "--curves-out", "training curves, .pdf or .png")
+    _add_config_args(p)
+
+
+@command(
+    "plot-models",
+    "figures of predicted Φ against the truth, and of training",
+    _plot_models_arguments,
+)
+def cmd_plot_models(args: argparse.Namespace) -> None:
+    import numpy as np
+    import pandas as pd
+
+    from cape.config import section
+    from cape.data.windows import make_windows
+    from cape.models.evaluate import predict_phi
+    from cape.models.trained import read_meta
+    from cape.plots.models import plot_phi, plot_training_curves
+    from cape.plots.style import save_figure
+    from cape.vehicle.dynamics import drivetrain_force
+    from cape.vehicle.params import GROUND_TRUTH
+
+    config = _config(args)
+    ts = float(section(config, "data")["ts"])
+    models = _load_models(args.model)
+    colors, labels = _colors_labels(config, list(models))
+    data = _load_npz(args.data)
+    phis, time = {}, None
+    for name, model in models.items():
+        windows = make_windows(data, model.history)
+        phis[name] = (list(model.param_names), predict_phi(model, windows.features))
+    # align on the common time axis: the label step of each window
+    shortest = min(len(phi) for _, phi in phis.values())
+    aligned = {n: (pn, phi[-shortest:]) for n, (pn, phi) in phis.items()}
+    time = data["time"][-shortest:]
+    steps = np.arange(data["inputs"].shape[1])[-shortest - 1 : -1]
+    true_frx = drivetrain_force(
+        data["dstates"][3, steps], data["inputs"][0, steps], GROUND_TRUTH.as_dict()
+    )
+    save_figure(plot_phi(aligned, time, colors, labels, ts, true_frx), *args.phi_out)
+    losses = {}
+    best = {}
+    for item in args.model:
+        name, _, folder = item.partition("=")
+        losses[name] = pd.read_csv(Path(folder) / "loss.csv")
+        best[name] = int(read_meta(folder)["best_epoch"])
+    save_figure(plot_training_curves(losses, best, colors, labels), *args.curves_out)
+    print("wrote " + ", ".join([*args.phi_out, *args.curves_out]))

@@ -1,0 +1,198 @@
+"""``cape build-solver``, ``rollout``, ``plot-rollout``: one closed-loop run and what it
+needs (SPEC §5–§7).
+
+Each command's arguments are defined right above it (``@command``)."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from typing import Any
+
+from cape.cli.common import (
+    STARTED,
+    _add_config_args,
+    _add_model_folders,
+    _add_outputs,
+    _config,
+    _model_folders,
+    command,
+)
+from cape.errors import CapeError
+
+PLANT_KINDS = "dpm|ddm|epm (learned), dpm-fixed|ddm-fixed|epm-fixed, or truth"
+
+
+def _build_solver_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--controller", required=True, help="controller name from the config (nmpc…)")
+    p.add_argument("--internal", required=True, help=PLANT_KINDS)
+    p.add_argument("--out", required=True, help="record of the compiled library (.json)")
+    _add_model_folders(p)
+    p.add_argument("--raceline", help="reference .npz (default: results/raceline/<track>.npz)")
+    _add_config_args(p)
+
+
+@command(
+    "build-solver",
+    "build a controller's NLP for an internal model once, compiling it into the cache",
+    _build_solver_arguments,
+)
+def cmd_build_solver(args: argparse.Namespace) -> None:
+    import json
+
+    from cape.closedloop.setup import build_run
+    from cape.io import write_text
+
+    config = _config(args)
+    run = build_run(
+        config,
+        "truth",  # the plant does not enter the controller's NLP
+        args.controller,
+        0.0,
+        0,
+        args.internal,
+        _model_folders(args),
+        args.raceline,
+    )
+    controller = run.controller
+    libraries = [
+        str(solver.library)
+        for solver in (getattr(controller, "backend", None), getattr(controller, "rescue", None))
+        if solver is not None and solver.library is not None
+    ]
+    library = libraries[0] if libraries else None
+    record = {
+        "controller": args.controller,
+        "internal": args.internal,
+        "libraries": libraries,
+        "compiled": bool(libraries),
+    }
+    write_text(args.out, json.dumps(record, indent=2, sort_keys=True) + "\n")
+    what = f"compiled {', '.join(libraries)}" if library is not None else "no compiled library"
+    print(f"{args.controller} with internal model {args.internal}: {what}")
+
+
+def _rollout_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--plant", required=True, help=PLANT_KINDS)
+    p.add_argument(
+        "--controller", required=True, help="controller name from the config (pid, rise, ...)"
+    )
+    p.add_argument("--eta", required=True, help="disturbance level η (0 … 5)")
+    p.add_argument("--seed", required=True, type=int, help="seed of every random draw of the run")
+    p.add_argument(
+        "--out", required=True, help="output folder (metrics.json, timing.json, timeseries.parquet)"
+    )
+    p.add_argument(
+        "--internal", help="the controller's internal model (default: the plant's model)"
+    )
+    _add_model_folders(p)
+    p.add_argument("--raceline", help="reference .npz (default: results/raceline/<track>.npz)")
+    p.add_argument("--study", default="adhoc", help="the study the run belongs to (metrics.json)")
+    _add_config_args(p)
+
+
+@command("rollout", "one closed-loop lap: plant, controller, η, seed (SPEC §5)", _rollout_arguments)
+def cmd_rollout(args: argparse.Namespace) -> None:
+    import json
+
+    import numpy as np
+
+    from cape.closedloop.setup import build_run
+    from cape.config import check_eta
+    from cape.io import atomic_folder, save_float_columns, write_text
+
+    config = _config(args)
+    eta = check_eta(args.eta, "--eta")
+    if args.seed < 0:
+        raise CapeError(f"--seed {args.seed}: a seed is a non-negative integer")
+    started = time.perf_counter()
+    run = build_run(
+        config,
+        args.plant,
+        args.controller,
+        eta,
+        args.seed,
+        args.internal,
+        _model_folders(args),
+        args.raceline,
+        validate=args.config_json is None,
+    )
+    built = time.perf_counter()
+    result = run()
+    lapped = time.perf_counter()
+    out = Path(args.out)
+    metrics = {
+        "study": args.study,
+        "plant": args.plant,
+        "controller": args.controller,
+        "internal": run.internal,
+        "eta": args.eta,
+        "seed": args.seed,
+        **result.metrics,
+    }
+    ms = result.solve_ms
+    timing: dict[str, Any] = {
+        f"solve_ms_{name}": float(np.percentile(ms, q)) if ms.size else None
+        for name, q in (("median", 50), ("p90", 90), ("p99", 99), ("max", 100))
+    }
+    # the run's three files appear together or not at all (one folder rename)
+    with atomic_folder(out) as folder:
+        save_float_columns(folder / "timeseries.parquet", result.series)
+        write_text(folder / "metrics.json", json.dumps(metrics, indent=2, sort_keys=True) + "\n")
+        # the job's wall time by phase (s): start-up (interpreter, imports, arguments), building
+        # the run (models, solver), the lap, writing
+        timing["job_s"] = {
+            "startup": round(started - STARTED, 4),
+            "build": round(built - started, 4),
+            "lap": round(lapped - built, 4),
+            "steps": int(metrics["steps"]),
+            "write": round(time.perf_counter() - lapped, 4),
+        }
+        write_text(folder / "timing.json", json.dumps(timing, indent=2, sort_keys=True) + "\n")
+    status = "lap" if metrics["success"] else f"failed ({metrics['failure']})"
+    run_name = f"{args.plant}/{args.controller} η={args.eta} seed={args.seed}"
+    print(f"{run_name}: {status}, lap time {metrics['lap_time']}")
+
+
+def _plot_rollout_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--run", required=True, help="a run folder (metrics.json, timeseries.parquet)")
+    _add_outputs(p, "--out", ".pdf or .png")
+    p.add_argument("--raceline", help="reference .npz (default: results/raceline/<track>.npz)")
+    _add_config_args(p)
+
+
+@command(
+    "plot-rollout",
+    "figure of one run: path on the track and the five signals",
+    _plot_rollout_arguments,
+)
+def cmd_plot_rollout(args: argparse.Namespace) -> None:
+    import json
+
+    import pandas as pd
+
+    from cape.closedloop.setup import load_reference
+    from cape.plots.rollout import plot_rollout
+    from cape.plots.style import save_figure
+
+    config = _config(args)
+    run = Path(args.run)
+    metrics_path = run / "metrics.json"
+    if not metrics_path.is_file():
+        raise CapeError(f"{metrics_path}: missing; run `snakemake --cores 1 {metrics_path}` first")
+    metrics = json.loads(metrics_path.read_text())
+    series = pd.read_parquet(run / "timeseries.parquet")
+    line, track = load_reference(config, args.raceline)
+    outcome = (
+        f"lap {metrics['lap_time']:.2f} s"
+        if metrics["success"]
+        else f"failed: {metrics['failure']}"
+    )
+    title = (
+        f"plant {metrics['plant']}, controller {metrics['controller']} "
+        f"(internal {metrics['internal']}), "
+        f"η = {metrics['eta']}, seed {metrics['seed']}: {outcome}"
+    )
+    save_figure(plot_rollout(track, line.path.x, line.path.y, series, title), *args.out)
+    print("wrote " + ", ".join(args.out))

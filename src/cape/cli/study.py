@@ -1,0 +1,57 @@
+"""``cape aggregate``: every run's metrics in one table and the per-cell summaries (SPEC §8–§9).
+
+Each command's arguments are defined right above it (``@command``)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from cape.cli.common import (
+    _add_config_args,
+    _config,
+    command,
+)
+
+
+def _aggregate_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("runs", nargs="*", help="metrics.json files of the runs (default: the grid)")
+    p.add_argument("--runs-from", metavar="FILE", help="a file listing metrics.json paths")
+    p.add_argument("--root", default="results/runs", help="where the grid's runs are")
+    p.add_argument("--out", required=True, help="the tidy table of runs (.parquet)")
+    p.add_argument("--summary", required=True, help="the per-cell summary (.parquet)")
+    _add_config_args(p)
+
+
+@command(
+    "aggregate",
+    "every run's metrics in one table, and per-cell means with 95%% CIs",
+    _aggregate_arguments,
+)
+def cmd_aggregate(args: argparse.Namespace) -> None:
+    from cape.io import atomic_open
+    from cape.study.aggregate import collect_runs, summarise
+    from cape.study.grid import canonical, study_runs
+
+    config = _config(args)
+    paths = [Path(p) for p in args.runs]
+    if args.runs_from:
+        paths += [Path(line) for line in Path(args.runs_from).read_text().split() if line]
+    pairs: list[tuple[str | None, Path]]
+    if paths:  # the runs named, each of the study its metrics.json records
+        pairs = [(None, p) for p in paths]
+    else:  # every run of the config's grid, read where it was computed
+        internal = set(config["study"].get("internal_controllers", []))
+        grid = canonical(study_runs(config["study"], config["disturbances"]["eta"],
+                                    lambda c: c in internal))  # fmt: skip
+        pairs = [(run.study, computed.folder(args.root) / "metrics.json")
+                 for run, computed in grid.items()]  # fmt: skip
+    runs = collect_runs(pairs, config["study"]["studies"])
+    with atomic_open(args.out, "wb") as handle:
+        runs.to_parquet(handle, index=False)
+    summary = summarise(runs)
+    with atomic_open(args.summary, "wb") as handle:
+        summary.to_parquet(handle, index=False)
+    ok = int(runs["success"].sum())
+    print(f"{len(runs)} runs ({ok} laps, {len(runs) - ok} failures) → {args.out}; "
+          f"{len(summary)} cells → {args.summary}")  # fmt: skip

@@ -1,0 +1,46 @@
+"""The code base's floors: no module imports a package above its own (docs/architecture.md).
+
+cli → study → plots → closedloop → controllers → models → data → tracks → vehicle → the
+bottom floor's helpers (errors, io, integrity, buffered, compiled, locks, config, registry,
+paper, tables): the order in which a run is built, each floor using only the ones below.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+from cape.config import REPO_ROOT
+
+FLOORS = [
+    ("errors", "io", "integrity", "buffered", "compiled", "locks", "config", "registry", "paper",
+     "tables"),
+    ("vehicle",), ("tracks",), ("data",), ("models",), ("controllers",), ("closedloop",),
+    ("plots",), ("study",), ("cli",),
+]  # fmt: skip
+LEVEL = {name: level for level, names in enumerate(FLOORS) for name in names}
+
+
+def _imports(path: Path) -> list[str]:
+    names = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module:
+            names.append(node.module)
+        elif isinstance(node, ast.Import):
+            names += [alias.name for alias in node.names]
+    return [n for n in names if n.startswith("cape.")]
+
+
+def test_no_module_imports_a_package_above_it() -> None:
+    root = REPO_ROOT / "src" / "cape"
+    upward = []
+    for path in sorted(root.rglob("*.py")):
+        own = path.relative_to(root).with_suffix("").parts[0]
+        if own == "__init__":
+            continue
+        assert own in LEVEL, f"{path}: add package {own!r} to a floor of this test"
+        for name in _imports(path):
+            other = name.split(".")[1]
+            if LEVEL.get(other, -1) > LEVEL[own]:
+                upward.append(f"{path.relative_to(REPO_ROOT)} imports {name}")
+    assert not upward, "\n".join(upward)
