@@ -81,7 +81,7 @@ def test_a_model_and_a_controller_added_by_config_alone_run_through_the_study(
     (work / "config").mkdir()
     (work / "config" / "config.yaml").write_text(yaml.safe_dump(cfg))
 
-    target = "results/notebooks/closed_loop_extension.html"
+    target = "results/notebooks/extension.html"
     result = subprocess.run(
         ["snakemake", "-s", str(REPO_ROOT / "Snakefile"), "--cores", "2", "-d", str(work), target],
         capture_output=True,
