@@ -63,6 +63,30 @@ def test_fused_adam_follows_the_loop_adam_within_rounding(config, small_data) ->
         assert a["val_loss"] == pytest.approx(b["val_loss"], rel=1e-3)
 
 
+@pytest.mark.slow  # a cold-cache compile: about a minute on two cores
+def test_compiled_training_is_reproducible_and_follows_eager_training(
+    config, small_data, tmp_path: Path
+) -> None:
+    """torch.compile'd steps (issue 15): the same seed twice gives the same losses bit for bit,
+    and the losses follow eager training within 1e-3 relative over the first 20 epochs. A
+    smaller GRU and trunk than EPM's keep the (cold-cache) compile short; the graph is the same
+    kind."""
+    head = {"width": 32, "layers": 2, "activation": "gelu", "layer_norm_after": [1]}
+    spec = {**config["models"]["epm"], "gru": {"hidden": 7, "layers": 2}, "head": head}
+    settings = {"enabled": True, "cache": str(tmp_path / "inductor")}
+
+    def run(compile_settings):
+        return train_model("epm", spec, small_data[7], ts=TS, seed=0, epochs=20, progress=False,
+                           compile_settings=compile_settings)  # fmt: skip
+
+    eager, first, second = run(None), run(settings), run(settings)
+    assert first.losses == second.losses
+    assert any((tmp_path / "inductor").iterdir())  # the cache is where the config says
+    for a, b in zip(first.losses, eager.losses, strict=True):
+        assert a["train_loss"] == pytest.approx(b["train_loss"], rel=1e-3)
+        assert a["val_loss"] == pytest.approx(b["val_loss"], rel=1e-3)
+
+
 def test_same_seed_same_losses_other_seed_other_weights(config, small_data) -> None:
     a = _train(config, "epm", small_data[7], seed=0)
     b = _train(config, "epm", small_data[7], seed=0)
@@ -239,3 +263,15 @@ def test_cli_train_writes_a_complete_model_folder(datasets, tmp_path: Path) -> N
 def test_cli_train_unknown_model_is_clear(tmp_path: Path, capsys) -> None:
     assert main(["train", "--model", "gpt", "--data", "x.npz", "--out", str(tmp_path)]) == 2
     assert "--model gpt: not in the config's `models`" in capsys.readouterr().err
+
+
+def test_compiled_training_without_a_compiler_says_how_to_train_eagerly(
+    config, small_data, tmp_path: Path, monkeypatch
+) -> None:
+    import torch._inductor.config as inductor
+
+    monkeypatch.setattr(inductor.cpp, "cxx", (str(tmp_path / "no-such-g++"),))
+    settings = {"enabled": True, "cache": str(tmp_path / "inductor")}  # cold: it must compile
+    with pytest.raises(CapeError, match=r"training\.compile\.enabled: false"):
+        train_model("dpm", config["models"]["dpm"], small_data[10], ts=TS, seed=0, epochs=1,
+                    progress=False, compile_settings=settings)  # fmt: skip

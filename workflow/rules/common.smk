@@ -68,14 +68,14 @@ PRESENTATION_KEYS = ("label", "color")
 
 
 def model_config_json(model):
-    """What training reads: the model's own entry (less its label and colour), the seed and
-    threads, the sampling time and the split. Nothing else, so that unrelated config edits
+    """What training reads: the model's own entry (less its label and colour), the seed,
+    threads and kernels, the sampling time and the split. Nothing else, so that unrelated config edits
     never retrain a model."""
     spec = {k: v for k, v in config["models"][model].items() if k not in PRESENTATION_KEYS}
     return json.dumps(
         {
             "models": {model: spec},
-            "training": {k: config["training"][k] for k in ("seed", "threads", "fused_adam")},
+            "training": {k: config["training"][k] for k in ("seed", "threads", "fused_adam", "compile")},
             "data": {k: config["data"][k] for k in ("ts", "split")},
         },
         sort_keys=True,

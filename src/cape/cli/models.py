@@ -96,6 +96,7 @@ def cmd_train(args: argparse.Namespace) -> None:
         epochs=args.epochs,
         threads=threads,
         fused=bool(train_cfg.get("fused_adam", True)),
+        compile_settings=train_cfg.get("compile"),
     )
     out = Path(args.out)
     meta = {
@@ -105,6 +106,7 @@ def cmd_train(args: argparse.Namespace) -> None:
         "best_val_loss": result.best_val_loss,
         "wall_seconds": result.wall_seconds,
         "threads": threads,
+        "compiled": bool((train_cfg.get("compile") or {}).get("enabled", False)),
         "split": split,
         "scaler": data.scaler.to_dict(),
         "data_file": str(data_path),
