@@ -157,6 +157,20 @@ def test_a_failed_solve_falls_back_to_the_previous_plan(cfg) -> None:
     np.testing.assert_allclose(u, _rate_limited(plan[1], plan[0]))
 
 
+def test_a_prediction_that_leaves_the_floats_is_a_failed_solve_not_a_crash(cfg) -> None:
+    """A measured speed far outside anything the model has seen makes the internal model's
+    prediction overflow: the SQP cannot pose its QP there. The step falls back (found in the
+    full study: a learned internal model's NaN reached the QP solver's bounds, and CasADi's
+    assertion stopped the whole workflow)."""
+    controller, x0, proj, ref = _first_step(cfg)
+    z = x0.copy()
+    z[3] = 1e200
+    u, info = controller.step(z, proj, ref)
+    assert info["fallback"] and controller.fallbacks == 1
+    assert controller.backend.stats.status == "not_finite"
+    assert np.all(np.isfinite(u))
+
+
 def test_a_run_with_failing_solves_goes_on_and_counts_them(cfg) -> None:
     """Every fourth solve fails: the run still laps and the metrics count the fallbacks."""
     run = _run(cfg)

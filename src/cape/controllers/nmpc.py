@@ -360,6 +360,8 @@ class NominalNMPC(Controller):
         rescue = self.rescue
         assert rescue is not None
         guess = rescue.decision_vector(self.backend.states(), inputs, slacks)
+        if not np.all(np.isfinite(guess)):  # the SQP's iterate left the floats: IPOPT's own start
+            guess = None
         plan, ok = rescue.solve(x0, params, throttle, guess=guess)
         if ok:
             plan = self.backend.adopt(plan)

@@ -385,6 +385,10 @@ class CondensedSQP:
         if not newton:
             self._calls["lin_gn"][1]()
         value = float(self._value[0])
+        if not (np.isfinite(value) and self._finite_bounds()):
+            # the internal model's prediction along this iterate left the floats (a learned
+            # model far outside its data): no QP can be posed here, the solve has failed
+            return "not_finite"
         n_u, radius = N_INPUT * self.n, self._radius
         for _ in range(MAX_SHRINK):
             self._region(radius)
@@ -448,6 +452,15 @@ class CondensedSQP:
         point found, every iterate being feasible and better than the last)."""
         n = self.n
         return self._w[: N_INPUT * n].reshape(n, N_INPUT).copy(), self._w[N_INPUT * n :].copy()
+
+    def _finite_bounds(self) -> bool:
+        """No NaN among the step's bounds (±inf is a free bound, NaN an undefined one)."""
+        return not (
+            np.isnan(self._lbx).any()
+            or np.isnan(self._ubx).any()
+            or np.isnan(self._lba).any()
+            or np.isnan(self._uba).any()
+        )
 
     def _region(self, radius: float) -> None:
         """The QP's bounds: the step's own, intersected with the trust region |d_i| ≤ radius ×
