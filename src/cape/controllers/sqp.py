@@ -408,7 +408,7 @@ class CondensedSQP:
             done = inside and (size <= self.tol or quadratic)
             trial()
             actual = value - float(self._trial_f[0])
-            rejected = actual < RATIO_ACCEPT * predicted
+            rejected = not actual >= RATIO_ACCEPT * predicted  # a NaN trial value is rejected
             if rejected and not done and self._second_order_correction(value, predicted):
                 actual = value - float(self._trial_f[0])
                 rejected = False
@@ -454,12 +454,13 @@ class CondensedSQP:
         return self._w[: N_INPUT * n].reshape(n, N_INPUT).copy(), self._w[N_INPUT * n :].copy()
 
     def _finite_bounds(self) -> bool:
-        """No NaN among the step's bounds (±inf is a free bound, NaN an undefined one)."""
-        return not (
-            np.isnan(self._lbx).any()
-            or np.isnan(self._ubx).any()
-            or np.isnan(self._lba).any()
-            or np.isnan(self._uba).any()
+        """The step's bounds pose a QP: no NaN, no lower bound at +inf, no upper bound at -inf
+        (-inf below and +inf above are free sides; a comparison with NaN is False)."""
+        return bool(
+            np.all(self._lbx < np.inf)
+            and np.all(self._ubx > -np.inf)
+            and np.all(self._lba < np.inf)
+            and np.all(self._uba > -np.inf)
         )
 
     def _region(self, radius: float) -> None:
@@ -491,6 +492,8 @@ class CondensedSQP:
         bound = self._q[self.n_state + 2 + self.layout["bound"].start]
         offsets = bound - self._uba[n : 2 * n] + eps
         shift = self._trial_offsets - (plus @ self._d + d_eps) - offsets
+        if not np.all(np.isfinite(shift)):  # the trial point's prediction left the floats
+            return False
         saved_d, saved_uba = self._d.copy(), self._uba.copy()
         self._uba[n : 2 * n] -= shift
         self._uba[2 * n :] += shift
