@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from cape.cli import main
 from cape.errors import CapeError
 from cape.study.aggregate import collect_runs, mean_ci, summarise
 from cape.study.grid import RunId, canonical, study_runs
@@ -244,3 +245,24 @@ def test_bars_centre_the_models_a_controller_has_on_its_tick() -> None:
     tops = [seg[:, 1].max() for line in ax.collections for seg in line.get_segments()]
     assert max(tops) == pytest.approx(15.0)
     assert [t.get_text() for t in fig.legends[0].get_texts()] == ["EPM", "true model"]
+
+
+def test_the_aggregation_reads_a_shared_run_where_the_workflow_computed_it(tmp_path: Path) -> None:
+    """A run two studies share is computed in the folder of the config's first study that has
+    it. The rule passes the config as JSON with sorted keys (ablation before learned), so the
+    order travels as a list; the full study failed here when it did not."""
+    studies = {"learned": {"plants": ["epm"], "controllers": ["nmpc"]},
+               "ablation": {"plants": ["epm"], "internal": ["epm", "truth"],
+                            "controllers": ["nmpc"]}}  # fmt: skip
+    config = {"study": {"seeds": 1, "studies": studies, "internal_controllers": ["nmpc"],
+                        "order": list(studies)},
+              "disturbances": {"eta": ["0"]}}  # fmt: skip
+    _write_run(tmp_path, "learned", "epm", "epm", "nmpc", "0", 0, True, 7.4, 0.02)
+    _write_run(tmp_path, "ablation", "epm", "truth", "nmpc", "0", 0, True, 7.5, 0.03)
+    out = tmp_path / "runs.parquet"
+    as_the_rule_passes_it = json.dumps(config, sort_keys=True)
+    main(["aggregate", "--root", str(tmp_path), "--out", str(out), "--summary",
+          str(tmp_path / "summary.parquet"), "--config-json", as_the_rule_passes_it])  # fmt: skip
+    runs = pd.read_parquet(out)
+    cells = set(zip(runs["study"], runs["internal"], runs["lap_time"], strict=True))
+    assert cells == {("learned", "epm", 7.4), ("ablation", "epm", 7.4), ("ablation", "truth", 7.5)}

@@ -178,6 +178,9 @@ def aggregate_config_json():
     internal model, so that it reads every study's runs where they were computed."""
     study = dict(config["study"])
     study["internal_controllers"] = sorted(c for c in config["controllers"] if uses_internal_model(c))
+    # the studies' order decides which folder computes a shared run (cape.study.grid.canonical);
+    # sort_keys would reorder the mapping, so the order travels as a list
+    study["order"] = list(config["study"]["studies"])
     return json.dumps({"study": study, "disturbances": {"eta": ETAS}}, sort_keys=True)
 
 

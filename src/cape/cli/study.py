@@ -42,7 +42,10 @@ def cmd_aggregate(args: argparse.Namespace) -> None:
         pairs = [(None, p) for p in paths]
     else:  # every run of the config's grid, read where it was computed
         internal = set(config["study"].get("internal_controllers", []))
-        grid = canonical(study_runs(config["study"], config["disturbances"]["eta"],
+        study = dict(config["study"])
+        if "order" in study:  # the workflow's order (its JSON has sorted keys): see canonical
+            study["studies"] = {name: study["studies"][name] for name in study["order"]}
+        grid = canonical(study_runs(study, config["disturbances"]["eta"],
                                     lambda c: c in internal))  # fmt: skip
         pairs = [(run.study, computed.folder(args.root) / "metrics.json")
                  for run, computed in grid.items()]  # fmt: skip
