@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+import yaml
 
 from cape.cli import main
 from cape.data.windows import make_windows
@@ -245,17 +246,21 @@ def test_flops_are_counted(config) -> None:
     assert flops >= 2 * linear_macs  # 2 FLOPs per multiply-accumulate, plus the GRU's
 
 
-def test_cli_train_writes_a_complete_model_folder(datasets, tmp_path: Path) -> None:
+def test_cli_train_writes_a_complete_model_folder(config, datasets, tmp_path: Path) -> None:
     data = tmp_path / "ethz.npz"
     np.savez(data, **datasets["ETHZ"])
     out = tmp_path / "epm"
-    assert (
-        main(["train", "--model", "epm", "--data", str(data), "--out", str(out), "--epochs", "1"])
-        == 0
-    )
+    # eager: a compiled step is the slow test's (a cold compile takes minutes), and the compile
+    # cache would land under the repository's results/
+    eager = {**config, "training": {**config["training"], "compile": {"enabled": False}}}
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(eager))
+    argv = ["train", "--model", "epm", "--data", str(data), "--out", str(out), "--epochs", "1",
+            "--config", str(tmp_path / "config.yaml")]  # fmt: skip
+    assert main(argv) == 0
     assert sorted(p.name for p in out.iterdir()) == ["loss.csv", "meta.json", "model.pt"]
     meta = json.loads((out / "meta.json").read_text())
     assert meta["epochs"] == 1 and meta["seed"] == 0 and len(meta["data_sha256"]) == 64
+    assert meta["compiled"] is False
     assert (out / "loss.csv").read_text().splitlines()[0] == "epoch,train_loss,val_loss"
     assert isinstance(load_model(out, "epm"), torch.nn.Module)
 
