@@ -14,6 +14,7 @@ from cape.cli.common import (
     _add_tracks_dir,
     _config,
     _entry,
+    _tracks_dir,
     command,
 )
 from cape.errors import CapeError
@@ -63,7 +64,7 @@ def cmd_data(args: argparse.Namespace) -> None:
     config = _config(args)
     data_cfg = section(config, "data")
     track_cfg = _entry(args.track, data_cfg["tracks"], "--track", "data.tracks")
-    tracks_dir = Path(args.tracks_dir or section(config, "tracks")["dir"])
+    tracks_dir = _tracks_dir(args, config)
     settings = ProtocolSettings.from_config(data_cfg, args.track)
     raceline = load_raceline(tracks_dir, track_cfg["raceline"])
     dataset = generate_dataset(raceline, GROUND_TRUTH, settings)
@@ -98,7 +99,7 @@ def cmd_plot_tracks(args: argparse.Namespace) -> None:
     config = _config(args)
     catalogue = section(config, "tracks")["catalogue"]
     data_tracks = section(config, "data")["tracks"]
-    tracks_dir = Path(args.tracks_dir or config["tracks"]["dir"])
+    tracks_dir = _tracks_dir(args, config)
     panels = []
     for item in args.data:
         name, sep, path = item.partition("=")
@@ -147,7 +148,7 @@ def cmd_raceline(args: argparse.Namespace) -> None:
     settings = section(config, "reference")
     catalogue = section(config, "tracks")["catalogue"]
     entry = _entry(args.track, catalogue, "--track", "tracks.catalogue")
-    tracks_dir = Path(args.tracks_dir or config["tracks"]["dir"])
+    tracks_dir = _tracks_dir(args, config)
     track = load_track(tracks_dir, args.track, entry["prefix"], entry["width"])
     line = build_raceline(track, settings, GROUND_TRUTH, ACTUATOR_LIMITS)
     path = line.path

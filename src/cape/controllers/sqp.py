@@ -385,14 +385,17 @@ class CondensedSQP:
         if not newton:
             self._calls["lin_gn"][1]()
         value = float(self._value[0])
-        if not (np.isfinite(value) and self._finite_bounds()):
+        if not np.isfinite(value):
             # the internal model's prediction along this iterate left the floats (a learned
             # model far outside its data): no QP can be posed here, the solve has failed
             return "not_finite"
         n_u, radius = N_INPUT * self.n, self._radius
         for _ in range(MAX_SHRINK):
             self._region(radius)
-            qp()
+            try:
+                qp()
+            except RuntimeError:  # CasADi refuses a QP whose bounds are NaN: the same failure
+                return "not_finite"
             predicted = -float(self._model[0])
             size = float(np.max(np.abs(self._d[:n_u])))
             step = float(np.max(np.abs(self._d[:n_u]) / self._range))  # in the region's unit
@@ -452,16 +455,6 @@ class CondensedSQP:
         point found, every iterate being feasible and better than the last)."""
         n = self.n
         return self._w[: N_INPUT * n].reshape(n, N_INPUT).copy(), self._w[N_INPUT * n :].copy()
-
-    def _finite_bounds(self) -> bool:
-        """The step's bounds pose a QP: no NaN, no lower bound at +inf, no upper bound at -inf
-        (-inf below and +inf above are free sides; a comparison with NaN is False)."""
-        return bool(
-            np.all(self._lbx < np.inf)
-            and np.all(self._ubx > -np.inf)
-            and np.all(self._lba < np.inf)
-            and np.all(self._uba > -np.inf)
-        )
 
     def _region(self, radius: float) -> None:
         """The QP's bounds: the step's own, intersected with the trust region |d_i| ≤ radius ×
