@@ -17,6 +17,7 @@ from cape.closedloop.rollout import initial_state, run_lap
 from cape.controllers import controller_class
 from cape.controllers.base import Controller
 from cape.integrity import sealed_arrays
+from cape.study.record import write_run_files, write_timing
 from cape.tracks.raceline import build_raceline
 from cape.tracks.reference import ReferenceLine
 from cape.tracks.track import load_track
@@ -274,9 +275,10 @@ def test_plot_rollout(tmp_path: Path, track_dir: Path, config, setting) -> None:
         config["controllers"]["rise"], setting[1], ACTUATOR_LIMITS, TS
     )
     result = _run(config, setting, controller)
-    pd.DataFrame(result.series).to_parquet(run / "timeseries.parquet")
-    meta = {"plant": "truth", "controller": "rise", "internal": "truth", "eta": "0", "seed": 0}
-    (run / "metrics.json").write_text(json.dumps({**meta, **result.metrics}))
+    meta = {"study": "adhoc", "plant": "truth", "controller": "rise", "internal": "truth",
+            "eta": "0", "seed": 0}  # fmt: skip
+    digest = write_run_files(run, {**meta, **result.metrics}, result.series)
+    write_timing(run, {"solve_ms_median": None}, digest)  # the record as `cape rollout` writes
     line = tmp_path / "line.npz"
     path = setting[1].path
     np.savez(line, **sealed_arrays({"x": path.x, "y": path.y, "speed": setting[1].v_path}))

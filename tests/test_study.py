@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,7 @@ from cape.cli import main
 from cape.errors import CapeError
 from cape.study.aggregate import collect_runs, mean_ci, summarise
 from cape.study.grid import RunId, canonical, study_runs
+from cape.study.record import write_run_files, write_timing
 from cape.study.scorecard import at_a_glance, learned_claims
 from cape.study.tables import (
     best_controller,
@@ -27,17 +29,20 @@ STUDIES = {"learned": {"plants": ["epm"]}, "truth": {"plants": ["truth"], "inter
 
 def _write_run(root: Path, study: str, plant: str, internal: str, controller: str, eta: str,
                seed: int, success: bool, lap: float | None, ey: float) -> Path:  # fmt: skip
+    """A run's folder as `cape rollout` writes it (cape.study.record), with these metrics."""
     folder = RunId(study, plant, internal, controller, eta, seed).folder(root)
     folder.mkdir(parents=True)
     metrics = {
         "study": study, "plant": plant, "internal": internal, "controller": controller, "eta": eta,
         "seed": seed, "success": success, "failure": None if success else "off_track",
         "lap_time": lap if success else None, "lap_time_penalised": lap if success else 15.0,
-        "mean_abs_ey": ey, "mean_abs_ey_penalised": ey if success else 0.23, "steps": 100,
-        "fallbacks": 0, "time_limit": 15.0,
+        "mean_abs_ex": ey / 2, "mean_abs_ey": ey, "mean_abs_ex_penalised": ey / 2 if success
+        else 0.23, "mean_abs_ey_penalised": ey if success else 0.23, "mean_abs_cte": ey,
+        "mean_speed": 1.5, "mean_abs_dT": 0.01, "mean_abs_ddelta": 0.01, "steps": 100,
+        "fallbacks": 0, "rescues": 0, "time_limit": 15.0,
     }  # fmt: skip
-    (folder / "metrics.json").write_text(json.dumps(metrics))
-    (folder / "timing.json").write_text(json.dumps({"solve_ms_median": 1.0}))
+    digest = write_run_files(folder, metrics, {"t": np.arange(3.0), "X": np.zeros(3)})
+    write_timing(folder, {"solve_ms_median": 1.0}, digest)
     return folder / "metrics.json"
 
 
@@ -71,13 +76,12 @@ def test_runs_are_collected_with_their_study_and_model(tmp_path: Path) -> None:
 def test_a_runs_study_is_read_from_its_metrics(tmp_path: Path) -> None:
     path = _write_run(tmp_path, "truth", "truth", "epm", "nmpc", "1", 0, True, 7.5, 0.02)
     moved = tmp_path / "elsewhere" / "metrics.json"  # not under a run's folder layout
-    moved.parent.mkdir()
-    moved.write_text(path.read_text())
+    shutil.copytree(path.parent, moved.parent)
     assert set(collect_runs([(None, moved)], STUDIES)["study"]) == {"truth"}
     metrics = json.loads(path.read_text())
     del metrics["study"]
     moved.write_text(json.dumps(metrics))
-    with pytest.raises(CapeError, match="no `study`"):
+    with pytest.raises(CapeError, match="'study' is a required property"):
         collect_runs([(None, moved)], STUDIES)
 
 

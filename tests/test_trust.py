@@ -101,9 +101,15 @@ def test_damaged_raceline_and_frozen_phi_are_refused(config, track_dir, tmp_path
     with pytest.raises(CapeError, match=r"line\.npz: not a readable raceline"):
         load_reference(cfg, str(line))
 
+    from cape.models.checkpoint import save_model
+    from cape.models.training import build_model
+
     folder = tmp_path / "models" / "ddm"
-    folder.mkdir(parents=True)
-    record = sealed_record({"model": "ddm", "phi": {"Bf": 5.6, "Df": 0.19}})
+    save_model(build_model("ddm", config["models"]["ddm"], TS, seed=0), folder, {"seed": 0})
+    weights = json.loads((folder / "meta.json").read_text())["weights_sha256"]
+    record = sealed_record(
+        {"model": "ddm", "phi": {"Bf": 5.6, "Df": 0.19}, "weights_sha256": weights}
+    )
     (folder / "frozen_phi.json").write_text(json.dumps(record))
     assert frozen_phi(tmp_path / "models", "ddm") == {"Bf": 5.6, "Df": 0.19}
     record["phi"]["Df"] = 0.9

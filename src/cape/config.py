@@ -62,9 +62,7 @@ def check_consistency(config: dict[str, Any], source: str = "config") -> None:
                 f"{source}: field `data.{key}` is {data[key]!r}, which is not one of "
                 f"`data.tracks` ({sorted(data['tracks'])}); choose one of those."
             )
-    if "disturbances" in config:
-        for i, label in enumerate(config["disturbances"]["eta"]):
-            check_eta(label, f"{source}: field `disturbances.eta[{i}]`")
+    _check_eta_labels(config, source)
     if "study" in config:
         _check_grid(config, source)
 
@@ -83,6 +81,35 @@ def check_eta(value: Any, where: str) -> float:
     if not low <= eta <= high:  # also false for NaN
         raise CapeError(f"{where}: η {value!r} is outside [{low:g}, {high:g}] (SPEC §6)")
     return eta
+
+
+def _check_eta_labels(config: dict[str, Any], source: str) -> None:
+    """Every η label is a number in range, listed once per list, and spelled one way in the
+    whole config: a label names the runs' folders, so ``"1"`` and ``"1.0"`` would be two
+    folders of the same runs, counted twice in every table."""
+    lists = []
+    if "disturbances" in config:
+        lists.append(("disturbances.eta", config["disturbances"]["eta"]))
+    for study, grid in (config.get("study") or {}).get("studies", {}).items():
+        if "eta" in grid:
+            lists.append((f"study.studies.{study}.eta", grid["eta"]))
+    spelled: dict[float, tuple[str, str]] = {}  # η → its first label and where it stands
+    for where, labels in lists:
+        listed: dict[float, int] = {}
+        for i, label in enumerate(labels):
+            eta = check_eta(label, f"{source}: field `{where}[{i}]`")
+            if eta in listed:
+                raise CapeError(
+                    f"{source}: field `{where}[{i}]` is {label!r}, the same η as "
+                    f"`{where}[{listed[eta]}]` ({labels[listed[eta]]!r}); list each η once"
+                )
+            listed[eta] = i
+            first, there = spelled.setdefault(eta, (label, f"{where}[{i}]"))
+            if first != label:
+                raise CapeError(
+                    f"{source}: field `{where}[{i}]` spells η {eta:g} as {label!r}, `{there}` "
+                    f"as {first!r}; spell it the same way everywhere (it names the run folders)"
+                )
 
 
 def plant_names(config: dict[str, Any]) -> list[str]:
@@ -106,8 +133,6 @@ def _check_grid(config: dict[str, Any], source: str) -> None:
                         f"{source}: field `{where}.{key}` names {name!r}, which the config does "
                         f"not define; use one of {', '.join(known)} (or add it to the config)"
                     )
-        for i, label in enumerate(grid.get("eta", [])):
-            check_eta(label, f"{source}: field `{where}.eta[{i}]`")
     paper = config["study"].get("paper")
     if paper is not None and paper not in config["study"]["studies"]:
         raise CapeError(
@@ -155,8 +180,10 @@ def validate_config(config: dict[str, Any], source: str = "config") -> dict[str,
         first = errors[0]
         field = ".".join(str(p) for p in first.absolute_path) or "(top level)"
         more = f" (and {len(errors) - 1} more problem(s))" if len(errors) > 1 else ""
+        what = first.schema.get("description") if isinstance(first.schema, dict) else None
+        hint = f" ({' '.join(what.split())})" if what and first.validator == "pattern" else ""
         raise CapeError(
-            f"{source}: field `{field}`: {first.message}{more}. "
+            f"{source}: field `{field}`: {first.message}{hint}{more}. "
             f"Fix the value; {SCHEMA_PATH.relative_to(REPO_ROOT)} describes every key."
         )
     check_consistency(config, source)

@@ -9,12 +9,15 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import sys
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator, Mapping
 from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
+
+from cape.errors import CapeError
 
 
 @contextlib.contextmanager
@@ -36,22 +39,88 @@ def atomic_open(path: str | os.PathLike[str], mode: str = "wb") -> Iterator[IO[A
         raise
 
 
+def check_replaceable(path: str | os.PathLike[str], own: Collection[str], what: str) -> None:
+    """Raise ``CapeError`` unless ``path`` may become a folder of ``what`` (a command's output
+    folder): it is absent, an empty folder, or a folder holding only files named in ``own``
+    (a previous output of the same command). Anything else is not this command's to replace:
+    a user's folder, the repository, a file."""
+    target = Path(path)
+    if target.is_symlink():
+        raise CapeError(f"{target}: is a symbolic link; give the folder itself as the output")
+    if not target.exists():
+        return
+    if not target.is_dir():
+        raise CapeError(f"{target}: exists and is not a folder; choose another output folder")
+    foreign = sorted(p.name for p in target.iterdir() if p.name not in own or not p.is_file())
+    if foreign:
+        more = f" and {len(foreign) - 5} more" if len(foreign) > 5 else ""
+        shown = ", ".join(foreign[:5]) + more
+        raise CapeError(
+            f"{target}: holds files that are not {what} ({shown}); nothing was changed. Give a "
+            "new or empty folder (a folder holding only an earlier output of this command is "
+            "replaced)"
+        )
+
+
 @contextlib.contextmanager
-def atomic_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
+def atomic_folder(path: str | os.PathLike[str], own: Collection[str], what: str) -> Iterator[Path]:
     """A temporary folder beside ``path`` to write a group of files into; on success it
     replaces ``path`` in one rename, so the files appear together or not at all (an
-    interrupted writer leaves the old folder, or none)."""
+    interrupted writer leaves the old folder, or none).
+
+    ``path`` is replaced only if ``check_replaceable`` allows it (checked before the files are
+    written and again before the rename): a command replaces its own earlier output and
+    nothing else. The old folder is renamed aside first and only the files named in ``own``
+    are deleted from it."""
     target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
+    check_replaceable(target, own, what)
+    parent = target.parent
+    parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent))
     try:
         yield tmp
         os.chmod(tmp, 0o777 & ~_umask())
-        if target.exists():  # a rerun: the old files go, then the new folder takes the name
-            shutil.rmtree(target)
+        check_replaceable(target, own, what)  # again: it may have changed meanwhile
+        old = None
+        if target.exists():  # a rerun: the old output steps aside, the new takes its name
+            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=parent))
+            os.replace(target, old)  # onto the empty folder just made
         os.rename(tmp, target)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if old is not None:
+        for name in own:
+            with contextlib.suppress(FileNotFoundError):
+                (old / name).unlink()
+        try:
+            old.rmdir()
+        except OSError:  # something appeared in the instant between the check and the rename
+            print(f"warning: kept {old}: it holds files not written here", file=sys.stderr)
+
+
+def write_files(contents: Mapping[str | os.PathLike[str], bytes]) -> None:
+    """Several files, all or none: each goes to a temporary file beside its target, and only
+    when every one is complete (a full disk fails here) are they renamed into place, so a new
+    file never stands beside an old one of the same group."""
+    staged: list[tuple[str, Path]] = []
+    try:
+        for path, data in contents.items():
+            target = Path(path)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+            staged.append((tmp, target))
+            with os.fdopen(fd, "wb") as handle:
+                handle.write(data)
+                handle.flush()
+                os.fsync(handle.fileno())
+            os.chmod(tmp, 0o666 & ~_umask())
+        for tmp, target in staged:
+            os.replace(tmp, target)
+    except BaseException:
+        for tmp, _ in staged:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(tmp)
         raise
 
 
@@ -76,23 +145,3 @@ def write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
 def write_text(path: str | os.PathLike[str], text: str) -> None:
     """Write ``text`` (UTF-8) to ``path`` atomically."""
     write_bytes(path, text.encode("utf-8"))
-
-
-def save_float_columns(path: str | os.PathLike[str], columns: dict[str, np.ndarray]) -> None:
-    """Equal-length float columns as a Parquet table, written atomically.
-
-    Built from raw buffers: ``pyarrow.array`` on a NumPy array imports pandas to check its
-    type, a second's start-up in each of thousands of rollout jobs that never use pandas.
-    """
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    arrays = []
-    for name, values in columns.items():
-        data = np.ascontiguousarray(values, dtype=np.float64)
-        if data.ndim != 1:
-            raise ValueError(f"column {name!r}: expected one dimension, got shape {data.shape}")
-        arrays.append(pa.Array.from_buffers(pa.float64(), data.size, [None, pa.py_buffer(data)]))
-    table = pa.Table.from_arrays(arrays, names=list(columns))
-    with atomic_open(path, "wb") as handle:
-        pq.write_table(table, handle)

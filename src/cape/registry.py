@@ -63,8 +63,9 @@ class Registry(Generic[T]):
                 _import(module)
             except Exception as exc:  # ImportError, or the module's own error (SyntaxError…)
                 raise CapeError(
-                    f"{self.kind} {name!r}: cannot import module {module!r} "
-                    f"({type(exc).__name__}: {exc})"
+                    f"field `{self.section}.{name}.module`: cannot import {module!r} "
+                    f"({type(exc).__name__}: {exc}); give an importable module or a .py file "
+                    "(docs/extending.md)"
                 ) from exc
             if name not in self._classes:
                 raise CapeError(

@@ -12,7 +12,7 @@ from typing import Any
 
 import pandas as pd
 
-from cape.io import write_text
+from cape.io import write_files
 
 Formatter = Callable[[Any], str]
 
@@ -70,7 +70,9 @@ def write_table(
     formats: Mapping[str, str | Formatter] | None = None,
     caption: str = "",
 ) -> None:
-    """Write ``frame`` to each path, the format chosen by its suffix (.csv, .md, .tex)."""
+    """Write ``frame`` to each path, the format chosen by its suffix (.csv, .md, .tex): all
+    or none (``cape.io.write_files``)."""
+    texts: dict[str | Path, bytes] = {}
     for path in paths:
         suffix = Path(path).suffix
         if suffix == ".csv":
@@ -81,4 +83,5 @@ def write_table(
             text = to_latex(frame, formats, caption)
         else:
             raise ValueError(f"{path}: unsupported table format {suffix!r} (use .csv, .md or .tex)")
-        write_text(path, text)
+        texts[path] = text.encode("utf-8")
+    write_files(texts)

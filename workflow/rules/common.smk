@@ -4,29 +4,32 @@ import json
 import os
 import sys
 
-from snakemake.utils import validate
-
-from cape.config import check_consistency
+from cape.config import validate_config
 from cape.controllers import controller_class
 from cape.closedloop.disturbances import validate_sources
 from cape.controllers.base import validate_settings
 from cape.locks import clear_stale_locks
-from cape.study.grid import RunId, canonical, study_runs
+from cape.models.registry import model_class
+from cape.study.grid import RunId, canonical, check_grid_size, study_runs
 from cape.study.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS
 from cape.tracks.manifest import BAYESRACE_FILES
 
 
-# Interrupted by SIGKILL, a run leaves its locks: the next one removes them when no other
-# Snakemake process works here, so that the documented command resumes (cape/locks.py).
-for _lock in clear_stale_locks("."):
-    print(f"removed {_lock}, left by an interrupted run; resuming", file=sys.stderr)
+# Interrupted by SIGKILL, a run leaves its locks: the main Snakemake process removes them when
+# it can prove that the run which wrote them has ended, so that the documented command resumes;
+# anything it cannot prove is left alone, with a message (cape/locks.py).
+if workflow.is_main_process:
+    clear_stale_locks(".", report=lambda message: print(message, file=sys.stderr))
 
 SOURCE = "config (config/config.yaml and any --configfile)"
-validate(config, "../schemas/config.schema.yaml")
-check_consistency(config, SOURCE)
+# the schema (workflow/schemas/config.schema.yaml, defaults filled in) and the cross-field
+# rules, each problem one message naming the key and the fix
+validate_config(config, SOURCE)
 for _name, _entry in config["controllers"].items():  # each controller's own keys
     validate_settings(controller_class(_name, _entry), _name, _entry, SOURCE)
 validate_sources(config["disturbances"], SOURCE)  # each disturbance source's own keys
+for _name, _entry in config["models"].items():  # each model's module imports and registers it
+    model_class(_name, _entry)
 
 # The software environment of every rule for `--sdm conda` (relative to workflow/rules/).
 CAPE_ENV = "../envs/cape.yaml"
@@ -163,6 +166,7 @@ def rollout_config_json(controller):
 def grid_runs():
     """Every run of the grid (cape.study.grid), each with the run that computes it (a run asked
     for by two studies, the ablation's diagonal, is computed once)."""
+    check_grid_size(config["study"], ETAS, uses_internal_model, SOURCE)  # before listing them
     runs = study_runs(config["study"], ETAS, uses_internal_model)
     return canonical(runs)
 

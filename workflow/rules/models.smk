@@ -17,6 +17,9 @@ rule train:
     priority: lambda wildcards: 100 + int(config["models"][wildcards.model]["train"]["epochs"]) // 10
     resources:
         runtime=240,
+        # how often the training writes its resumable checkpoint: a resource, not a param,
+        # since it changes no result and so must not retrain a finished model
+        checkpoint_every=lambda wildcards: str(config["training"].get("checkpoint_every", 60)),
     conda:
         CAPE_ENV
     log:
@@ -25,7 +28,8 @@ rule train:
         "results/benchmarks/train/{model}.tsv"
     shell:
         "cape train --model {wildcards.model} --data {input.data} --out {params.out}"
-        " --threads {threads} --config-json {params.cfg:q} > {log} 2>&1"
+        " --threads {threads} --checkpoint-every {resources.checkpoint_every}"
+        " --config-json {params.cfg:q} > {log} 2>&1"
 
 
 rule freeze:

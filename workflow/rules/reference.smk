@@ -10,10 +10,13 @@ rule raceline:
         png="results/figures/raceline_{track}.png",
     params:
         cfg=lambda wildcards: config_json("tracks", "reference"),
+        # checked against the line's ideal lap before any run starts (a limit no lap can meet)
+        time_limit=config["rollout"]["time_limit"],
     conda:
         CAPE_ENV
     log:
         "results/logs/raceline/{track}.log",
     shell:
         "cape raceline --track {wildcards.track} --out {output.line}"
-        " --figure {output.pdf} --figure {output.png} --config-json {params.cfg:q} > {log} 2>&1"
+        " --figure {output.pdf} --figure {output.png} --time-limit {params.time_limit}"
+        " --config-json {params.cfg:q} > {log} 2>&1"

@@ -9,7 +9,10 @@ right above it; this module assembles them.
 from __future__ import annotations
 
 import argparse
+import errno
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 
 from cape.cli import data, models, runs, study  # noqa: F401  (they register their commands)
@@ -36,12 +39,51 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Interrupted(BaseException):
+    """SIGTERM (what a scheduler or Snakemake sends to stop a job), raised where the process
+    is, so that its temporary files are cleaned up as for Ctrl-C."""
+
+
+def _terminated(signum: int, _frame: object) -> None:
+    raise Interrupted(signum)
+
+
+def describe_os_error(exc: OSError) -> str:
+    """One line for a failed read or write: the file, what the system said, and the fix."""
+    where = f"{exc.filename}: " if exc.filename else ""
+    what = exc.strerror or str(exc)
+    fixes = {
+        errno.ENOSPC: "the disk is full; free some space and run the command again",
+        errno.EDQUOT: "the disk quota is exhausted; free some space and run the command again",
+        errno.EACCES: "permission denied; choose a location you can write to",
+        errno.EROFS: "the file system is read-only; choose another location",
+    }
+    fix = fixes.get(exc.errno or 0, "check the path and the file system, then run it again")
+    return f"{where}{what} ({fix}; no file was left half-written)"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run one subcommand; a ``CapeError`` becomes a one-line message and exit status 2."""
+    """Run one subcommand. A ``CapeError`` or a failed read or write (a full disk) becomes a
+    one-line message and exit status 2; Ctrl-C and SIGTERM a one-line message and 130 or 143.
+    Every output is written atomically, so none of these leaves a half-written file."""
     args = build_parser().parse_args(argv)
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminated) if main_thread else None
     try:
         args.func(args)
     except CapeError as exc:
         print(f"cape {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        print(f"cape {args.command}: error: {describe_os_error(exc)}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"cape {args.command}: interrupted; no output was left half-written", file=sys.stderr)
+        return 130
+    except Interrupted:
+        print(f"cape {args.command}: terminated; no output was left half-written", file=sys.stderr)
+        return 143
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous)
     return 0

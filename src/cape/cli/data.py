@@ -127,13 +127,18 @@ def _raceline_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--figure", action="append", metavar="PATH", help="figure beside BayesRace's (repeat)"
     )
+    p.add_argument(
+        "--time-limit",
+        type=float,
+        help="the runs' time limit (s, rollout.time_limit): refused if shorter than the line's "
+        "ideal lap, before any run starts",
+    )
     _add_tracks_dir(p)
     _add_config_args(p)
 
 
 @command("raceline", "CAPE's minimum-curvature reference raceline (SPEC §2)", _raceline_arguments)
 def cmd_raceline(args: argparse.Namespace) -> None:
-    import numpy as np
 
     from cape.config import section
     from cape.integrity import sealed_arrays
@@ -141,6 +146,7 @@ def cmd_raceline(args: argparse.Namespace) -> None:
     from cape.plots.style import save_figure
     from cape.plots.tracks import plot_raceline
     from cape.tracks.raceline import build_raceline, lap_time
+    from cape.tracks.reference import check_time_limit, ideal_lap_time
     from cape.tracks.track import load_raceline, load_track
     from cape.vehicle.params import ACTUATOR_LIMITS, GROUND_TRUTH
 
@@ -152,8 +158,9 @@ def cmd_raceline(args: argparse.Namespace) -> None:
     track = load_track(tracks_dir, args.track, entry["prefix"], entry["width"])
     line = build_raceline(track, settings, GROUND_TRUTH, ACTUATOR_LIMITS)
     path = line.path
-    scaled = np.clip(settings["scale"] * line.speed, settings["v_min"], settings["v_max"])
-    ideal = float(np.sum(path.segment_lengths / scaled))
+    ideal = ideal_lap_time(path, line.speed, settings)
+    if args.time_limit is not None:  # before anything is written: no run could finish
+        check_time_limit(args.time_limit, ideal)
     save_npz(
         args.out,
         **sealed_arrays({

@@ -52,6 +52,13 @@ def _train_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--epochs", type=int, help="override the config's epoch count (smoke runs)")
     p.add_argument("--seed", type=int, help="override training.seed")
     p.add_argument("--threads", type=int, help="override training.threads")
+    p.add_argument(
+        "--checkpoint-every",
+        type=float,
+        metavar="SECONDS",
+        help="write the resumable checkpoint at most this often (default: "
+        "training.checkpoint_every, else 60; 0: after every epoch)",
+    )
     _add_config_args(p)
 
 
@@ -63,12 +70,18 @@ def cmd_train(args: argparse.Namespace) -> None:
     import torch
 
     from cape.config import section
-    from cape.io import write_text
     from cape.models.checkpoint import save_model
-    from cape.models.training import TrainingData, train_model
+    from cape.models.trained import FORMAT_VERSION
+    from cape.models.training import (
+        Checkpointing,
+        TrainingData,
+        train_model,
+        training_fingerprint,
+    )
 
     config = _config(args)
     spec = _model_spec(config, args.model)
+    _check_model_folder(Path(args.out))  # before the training, not after it
     data_cfg, train_cfg = section(config, "data"), section(config, "training")
     seed = int(args.seed if args.seed is not None else train_cfg["seed"])
     data_path = Path(args.data)
@@ -83,6 +96,27 @@ def cmd_train(args: argparse.Namespace) -> None:
         dataset, int(spec["history"]), float(split["train_fraction"]), int(split["seed"])
     )
     threads = int(args.threads or train_cfg["threads"])
+    out = Path(args.out)
+    data_sha256 = hashlib.sha256(data_path.read_bytes()).hexdigest()
+    fused = bool(train_cfg.get("fused_adam", True))
+    compiled = bool((train_cfg.get("compile") or {}).get("enabled", False))
+    fingerprint = training_fingerprint(
+        model=args.model,
+        spec={k: v for k, v in spec.items() if k not in ("label", "color")},
+        ts=float(data_cfg["ts"]),
+        seed=seed,
+        epochs=int(args.epochs if args.epochs is not None else spec["train"]["epochs"]),
+        split=split,
+        data_sha256=data_sha256,
+        threads=threads,
+        fused=fused,
+        compiled=compiled,
+        torch=torch.__version__,
+        format=FORMAT_VERSION,
+    )
+    every = args.checkpoint_every
+    every = float(train_cfg.get("checkpoint_every", 60.0) if every is None else every)
+    checkpoint = Checkpointing(out / f"checkpoint-{fingerprint[:16]}.pt", fingerprint, every)
     print(
         f"training {args.model}: {len(data.train)} training / {len(data.val)} validation "
         f"windows, seed {seed}"
@@ -95,10 +129,12 @@ def cmd_train(args: argparse.Namespace) -> None:
         seed=seed,
         epochs=args.epochs,
         threads=threads,
-        fused=bool(train_cfg.get("fused_adam", True)),
+        fused=fused,
         compile_settings=train_cfg.get("compile"),
+        checkpoint=checkpoint,
     )
-    out = Path(args.out)
+    if result.resumed_from:
+        print(f"resumed from {checkpoint.path} after epoch {result.resumed_from}")
     meta = {
         "seed": seed,
         "epochs": len(result.losses),
@@ -106,23 +142,44 @@ def cmd_train(args: argparse.Namespace) -> None:
         "best_val_loss": result.best_val_loss,
         "wall_seconds": result.wall_seconds,
         "threads": threads,
-        "compiled": bool((train_cfg.get("compile") or {}).get("enabled", False)),
+        "compiled": compiled,
         "split": split,
         "scaler": data.scaler.to_dict(),
         "data_file": str(data_path),
-        "data_sha256": hashlib.sha256(data_path.read_bytes()).hexdigest(),
+        "data_sha256": data_sha256,
         "torch_version": torch.__version__,
+        "resumed_from_epoch": result.resumed_from,
     }
-    save_model(result.model, out, meta)
     rows = ["epoch,train_loss,val_loss"] + [
         f"{r['epoch']},{r['train_loss']:.17g},{r['val_loss']:.17g}" for r in result.losses
     ]
-    write_text(out / "loss.csv", "\n".join(rows) + "\n")
+    save_model(result.model, out, meta, {"loss.csv": ("\n".join(rows) + "\n").encode()})
+    checkpoint.path.unlink(missing_ok=True)  # done: the model replaces it
     print(
         f"{args.model}: best validation MSE {result.best_val_loss:.4e} "
         f"at epoch {result.best_epoch} "
         f"of {len(result.losses)}; {result.wall_seconds:.1f} s; saved to {out}"
     )
+
+
+def _check_model_folder(out: Path) -> None:
+    """``cape train`` replaces a model folder's ``model.pt``, ``meta.json`` and ``loss.csv``
+    only if they are a model CAPE wrote (its ``meta.json`` readable): never a user's files of
+    the same names, never a file given as the folder."""
+    from cape.models.trained import read_meta
+
+    if out.exists() and not out.is_dir():
+        raise CapeError(f"--out {out}: exists and is not a folder; choose a model folder")
+    present = [n for n in ("model.pt", "meta.json", "loss.csv") if (out / n).exists()]
+    if not present:
+        return
+    try:
+        read_meta(out)
+    except CapeError as exc:
+        raise CapeError(
+            f"--out {out}: holds {', '.join(present)} that are not a model CAPE trained ({exc}); "
+            "nothing was changed. Choose another folder, or delete those files"
+        ) from None
 
 
 def _freeze_arguments(p: argparse.ArgumentParser) -> None:
@@ -144,6 +201,7 @@ def cmd_freeze(args: argparse.Namespace) -> None:
     from cape.integrity import sealed_record
     from cape.io import write_text
     from cape.models.evaluate import frozen_parameters
+    from cape.models.trained import read_meta
     from cape.models.training import TrainingData
 
     config = _config(args)
@@ -153,10 +211,12 @@ def cmd_freeze(args: argparse.Namespace) -> None:
         _load_npz(args.data), model.history, float(split["train_fraction"]), int(split["seed"])
     )
     frozen = frozen_parameters(model, data.train)
+    folder = args.model.partition("=")[2]
     payload = sealed_record({
         "model": name,
         "source": "median of Φ over the ETHZ training windows (SPEC §4.5)",
         "phi": frozen,
+        "weights_sha256": read_meta(folder)["weights_sha256"],  # the weights it is from
     })  # fmt: skip
     write_text(args.out, json.dumps(payload, indent=2) + "\n")
     print(f"wrote {args.out}: " + ", ".join(f"{k}={v:.4g}" for k, v in frozen.items()))

@@ -22,6 +22,7 @@ from cape.cli.common import (
 from cape.errors import CapeError
 
 PLANT_KINDS = "dpm|ddm|epm (learned), dpm-fixed|ddm-fixed|epm-fixed, or truth"
+RUN_WHAT = "a run's own files (metrics.json, timing.json, timeseries.parquet)"
 
 
 def _build_solver_arguments(p: argparse.ArgumentParser) -> None:
@@ -94,18 +95,21 @@ def _rollout_arguments(p: argparse.ArgumentParser) -> None:
 
 @command("rollout", "one closed-loop lap: plant, controller, η, seed (SPEC §5)", _rollout_arguments)
 def cmd_rollout(args: argparse.Namespace) -> None:
-    import json
-
     import numpy as np
 
     from cape.closedloop.setup import build_run
     from cape.config import check_eta
-    from cape.io import atomic_folder, save_float_columns, write_text
+    from cape.io import atomic_folder, check_replaceable
+    from cape.study.grid import RUN_FILES, check_name
+    from cape.study.record import write_run_files, write_timing
 
     config = _config(args)
     eta = check_eta(args.eta, "--eta")
     if args.seed < 0:
         raise CapeError(f"--seed {args.seed}: a seed is a non-negative integer")
+    check_name(args.study, "--study")
+    out = Path(args.out)
+    check_replaceable(out, RUN_FILES, RUN_WHAT)  # before the lap, not after it
     started = time.perf_counter()
     run = build_run(
         config,
@@ -121,7 +125,6 @@ def cmd_rollout(args: argparse.Namespace) -> None:
     built = time.perf_counter()
     result = run()
     lapped = time.perf_counter()
-    out = Path(args.out)
     metrics = {
         "study": args.study,
         "plant": args.plant,
@@ -137,9 +140,8 @@ def cmd_rollout(args: argparse.Namespace) -> None:
         for name, q in (("median", 50), ("p90", 90), ("p99", 99), ("max", 100))
     }
     # the run's three files appear together or not at all (one folder rename)
-    with atomic_folder(out) as folder:
-        save_float_columns(folder / "timeseries.parquet", result.series)
-        write_text(folder / "metrics.json", json.dumps(metrics, indent=2, sort_keys=True) + "\n")
+    with atomic_folder(out, RUN_FILES, RUN_WHAT) as folder:
+        series_sha256 = write_run_files(folder, metrics, result.series)
         # the job's wall time by phase (s): start-up (interpreter, imports, arguments), building
         # the run (models, solver), the lap, writing
         timing["job_s"] = {
@@ -149,7 +151,7 @@ def cmd_rollout(args: argparse.Namespace) -> None:
             "steps": int(metrics["steps"]),
             "write": round(time.perf_counter() - lapped, 4),
         }
-        write_text(folder / "timing.json", json.dumps(timing, indent=2, sort_keys=True) + "\n")
+        write_timing(folder, timing, series_sha256)
     status = "lap" if metrics["success"] else f"failed ({metrics['failure']})"
     run_name = f"{args.plant}/{args.controller} η={args.eta} seed={args.seed}"
     print(f"{run_name}: {status}, lap time {metrics['lap_time']}")
@@ -168,21 +170,15 @@ def _plot_rollout_arguments(p: argparse.ArgumentParser) -> None:
     _plot_rollout_arguments,
 )
 def cmd_plot_rollout(args: argparse.Namespace) -> None:
-    import json
-
-    import pandas as pd
-
     from cape.closedloop.setup import load_reference
     from cape.plots.rollout import plot_rollout
     from cape.plots.style import save_figure
+    from cape.study.record import read_metrics, read_series
 
     config = _config(args)
     run = Path(args.run)
-    metrics_path = run / "metrics.json"
-    if not metrics_path.is_file():
-        raise CapeError(f"{metrics_path}: missing; run `snakemake --cores 1 {metrics_path}` first")
-    metrics = json.loads(metrics_path.read_text())
-    series = pd.read_parquet(run / "timeseries.parquet")
+    metrics = read_metrics(run / "metrics.json")
+    series = read_series(run)
     line, track = load_reference(config, args.raceline)
     outcome = (
         f"lap {metrics['lap_time']:.2f} s"

@@ -29,15 +29,15 @@ def _aggregate_arguments(p: argparse.ArgumentParser) -> None:
     _aggregate_arguments,
 )
 def cmd_aggregate(args: argparse.Namespace) -> None:
-    from cape.io import atomic_open
+    from cape.io import write_files
     from cape.study.aggregate import collect_runs, summarise
-    from cape.study.grid import canonical, study_runs
+    from cape.study.grid import RunId, canonical, study_runs
 
     config = _config(args)
     paths = [Path(p) for p in args.runs]
     if args.runs_from:
         paths += [Path(line) for line in Path(args.runs_from).read_text().split() if line]
-    pairs: list[tuple[str | None, Path]]
+    pairs: list[tuple[str | None, Path] | tuple[str | None, Path, RunId]]
     if paths:  # the runs named, each of the study its metrics.json records
         pairs = [(None, p) for p in paths]
     else:  # every run of the config's grid, read where it was computed
@@ -47,14 +47,14 @@ def cmd_aggregate(args: argparse.Namespace) -> None:
             study["studies"] = {name: study["studies"][name] for name in study["order"]}
         grid = canonical(study_runs(study, config["disturbances"]["eta"],
                                     lambda c: c in internal))  # fmt: skip
-        pairs = [(run.study, computed.folder(args.root) / "metrics.json")
+        pairs = [(run.study, computed.folder(args.root) / "metrics.json", computed)
                  for run, computed in grid.items()]  # fmt: skip
     runs = collect_runs(pairs, config["study"]["studies"])
-    with atomic_open(args.out, "wb") as handle:
-        runs.to_parquet(handle, index=False)
     summary = summarise(runs)
-    with atomic_open(args.summary, "wb") as handle:
-        summary.to_parquet(handle, index=False)
+    # both tables or neither: a new runs.parquet never stands beside an old summary
+    write_files(
+        {args.out: runs.to_parquet(index=False), args.summary: summary.to_parquet(index=False)}
+    )
     ok = int(runs["success"].sum())
     print(f"{len(runs)} runs ({ok} laps, {len(runs) - ok} failures) → {args.out}; "
           f"{len(summary)} cells → {args.summary}")  # fmt: skip

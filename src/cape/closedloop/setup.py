@@ -23,8 +23,8 @@ from cape.controllers.internal import InternalModel, fixed_internal
 from cape.errors import CapeError
 from cape.integrity import check_arrays, check_record
 from cape.models.registry import model_class
-from cape.models.trained import TrainedModel, load_physics, load_trained
-from cape.tracks.reference import ReferenceLine
+from cape.models.trained import TrainedModel, load_physics, load_trained, read_meta
+from cape.tracks.reference import ReferenceLine, check_time_limit
 from cape.tracks.track import Track, load_raceline, load_track
 from cape.vehicle.params import ACTUATOR_LIMITS, GROUND_TRUTH
 
@@ -98,6 +98,13 @@ def frozen_phi(models: Path | ModelFolders, model_name: str) -> dict[str, float]
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise CapeError(f"{path}: not readable JSON ({exc}); {fix}") from None
     check_record(record, path, fix)
+    weights = read_meta(path.parent).get("weights_sha256")
+    if record.get("weights_sha256") != weights:
+        raise CapeError(
+            f"{path}: frozen from other weights than the model.pt beside it (its meta.json "
+            f"records {str(weights)[:12]}…, the file {str(record.get('weights_sha256'))[:12]}…): "
+            f"it is stale; {fix}"
+        )
     phi = record.get("phi")
     if not isinstance(phi, dict) or not all(
         isinstance(v, int | float) and math.isfinite(v) for v in phi.values()
@@ -188,6 +195,7 @@ def build_run(
             f"--controller {controller_name}: not in the config's `controllers` ({known})"
         )
     line, track = load_reference(config, raceline)
+    check_time_limit(float(section(config, "rollout")["time_limit"]), line.ideal_lap_time())
     disturbances = DisturbancePipeline.from_config(section(config, "disturbances"), eta, seed)
     transform = disturbances.plant_params
     loaded: dict[str, TrainedModel] = {}

@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -18,19 +19,25 @@ import numpy as np
 import torch
 
 from cape.errors import CapeError
-from cape.io import write_bytes, write_text
+from cape.io import write_files
 from cape.models.base import LearnedModel
 from cape.models.network import save_network
 from cape.models.trained import FORMAT_VERSION, load_physics, read_meta
 
 
-def save_model(model: LearnedModel, folder: str | Path, meta: dict[str, Any]) -> None:
-    """Write ``model.pt`` and ``meta.json`` into ``folder`` (atomically, each)."""
+def save_model(
+    model: LearnedModel,
+    folder: str | Path,
+    meta: dict[str, Any],
+    extra: Mapping[str, bytes] | None = None,
+) -> None:
+    """Write ``model.pt``, ``meta.json`` and the ``extra`` files (name → content) into
+    ``folder``, all or none (``cape.io.write_files``: new weights never stand beside an old
+    ``meta.json``)."""
     folder = Path(folder)
     buffer = io.BytesIO()
     torch.save(model.state_dict(), buffer)
     weights = buffer.getvalue()
-    write_bytes(folder / "model.pt", weights)
     full = {
         "weights_sha256": hashlib.sha256(weights).hexdigest(),  # checked by every load
         "format": FORMAT_VERSION,
@@ -41,7 +48,10 @@ def save_model(model: LearnedModel, folder: str | Path, meta: dict[str, Any]) ->
         "param_names": list(model.param_names),
         **meta,
     }
-    write_text(folder / "meta.json", json.dumps(full, indent=2, sort_keys=True) + "\n")
+    files = {folder / "model.pt": weights}
+    files[folder / "meta.json"] = (json.dumps(full, indent=2, sort_keys=True) + "\n").encode()
+    files.update({folder / name: data for name, data in (extra or {}).items()})
+    write_files(files)
 
 
 def load_model(folder: str | Path, expected_name: str | None = None) -> LearnedModel:
@@ -113,6 +123,7 @@ def export_network(
     folder = Path(folder)
     target = Path(out) if out is not None else folder / "network.npz"
     arrays = load_model(folder, expected_name).network_arrays()
+    arrays["weights_sha256"] = np.array(read_meta(folder)["weights_sha256"])  # what it is from
     bad = [k for k, v in arrays.items() if v.dtype.kind == "f" and not np.all(np.isfinite(v))]
     if bad:
         raise CapeError(

@@ -181,9 +181,13 @@ def save_network(path: str | Path, arrays: Mapping[str, Array]) -> None:
 
 
 def load_network(
-    path: str | Path, compile_settings: Mapping[str, Any] | None = None
+    path: str | Path,
+    compile_settings: Mapping[str, Any] | None = None,
+    weights_sha256: str | None = None,
 ) -> NumpyNetwork:
-    """The network in ``path``, or a ``CapeError`` naming the file and the fix."""
+    """The network in ``path``, or a ``CapeError`` naming the file and the fix.
+    ``weights_sha256``: the digest of the ``model.pt`` it must have been exported from (its
+    ``meta.json`` records it), so that a network left from earlier weights is refused."""
     path = Path(path)
     fix = f"rebuild it with `snakemake --cores 1 {path}`"
     try:
@@ -197,6 +201,15 @@ def load_network(
     version = int(arrays["format"]) if "format" in arrays else None
     if version != NETWORK_FORMAT:
         raise CapeError(f"{path}: network format {version}, expected {NETWORK_FORMAT}; {fix}")
+    if weights_sha256 is not None:
+        exported = str(arrays["weights_sha256"]) if "weights_sha256" in arrays else None
+        if exported != weights_sha256:
+            raise CapeError(
+                f"{path}: exported from other weights than the model.pt beside it (its "
+                f"meta.json records {weights_sha256[:12]}…, the network "
+                f"{(exported or 'none')[:12]}…): it is stale; rebuild it with `cape "
+                f"export-network --model NAME={path.parent}` or `snakemake --cores 1 {path}`"
+            )
     try:
         return NumpyNetwork(arrays, compile_settings)
     except (KeyError, ValueError, IndexError) as exc:

@@ -77,9 +77,12 @@ def read_meta(folder: str | Path) -> dict[str, Any]:
     return meta
 
 
-def load_physics(folder: str | Path, expected_name: str | None = None) -> ModelPhysics:
-    """The physics of the model trained in ``folder`` (its name, spec and Ts from meta.json)."""
-    meta = read_meta(folder)
+def load_physics(
+    folder: str | Path, expected_name: str | None = None, meta: dict[str, Any] | None = None
+) -> ModelPhysics:
+    """The physics of the model trained in ``folder`` (its name, spec and Ts from meta.json,
+    or from ``meta``, that file already read)."""
+    meta = meta if meta is not None else read_meta(folder)
     name = meta["name"]
     if expected_name is not None and name != expected_name:
         raise CapeError(f"{folder}: holds model {name!r}, expected {expected_name!r}")
@@ -95,8 +98,10 @@ def load_trained(
     ``compile_settings`` (``rollout.compile``) runs its GRU as compiled C."""
     from cape.models.network import load_network
 
-    physics = load_physics(folder, expected_name)
-    network = load_network(Path(folder) / "network.npz", compile_settings)
+    meta = read_meta(folder)
+    physics = load_physics(folder, expected_name, meta)
+    weights = meta.get("weights_sha256") or ""  # the network must be exported from them
+    network = load_network(Path(folder) / "network.npz", compile_settings, weights)
     shape, expected = (
         (network.history, network.n_outputs),
         (

@@ -7,6 +7,9 @@ MSE on the unscaled next [vx, vy, ω]; Adam; the checkpoint of best validation l
 from __future__ import annotations
 
 import copy
+import hashlib
+import io
+import json
 import os
 import sys
 import time
@@ -21,6 +24,7 @@ from tqdm import tqdm
 
 from cape.data.windows import StandardScaler, WindowSet, make_windows, split_indices
 from cape.errors import CapeError
+from cape.io import write_bytes
 from cape.models.base import LearnedModel
 from cape.models.registry import model_class
 
@@ -52,6 +56,53 @@ class TrainingResult:
     best_epoch: int = 0
     best_val_loss: float = float("inf")
     wall_seconds: float = 0.0
+    resumed_from: int = 0
+    """The epoch a checkpoint had completed when this training resumed from it (0: none)."""
+
+
+@dataclass(frozen=True)
+class Checkpointing:
+    """Where an interrupted training resumes from (``path``), and how often it is written.
+
+    The checkpoint holds everything the next epoch depends on (weights, Adam's state, the
+    best weights so far, the losses, the batch-order and global RNG states, the epoch), so a
+    resumed training continues on exactly the path of an uninterrupted one: the same losses
+    bit for bit and a byte-identical ``model.pt``. ``fingerprint`` names what it was written
+    for (the model, its recipe, the seed, the data, the threads and kernels); a checkpoint of
+    anything else is refused, never resumed."""
+
+    path: Path
+    fingerprint: str
+    every_seconds: float = 60.0
+
+    def load(self) -> dict[str, Any] | None:
+        """The checkpoint's state, None if there is none, ``CapeError`` if it is not this
+        training's."""
+        if not self.path.is_file():
+            return None
+        fix = f"delete it (`rm {self.path}`) to train from the start"
+        try:
+            state = torch.load(self.path, map_location="cpu", weights_only=True)
+        except Exception as exc:  # torch raises several types for a damaged file
+            raise CapeError(f"{self.path}: not a readable checkpoint ({exc}); {fix}") from exc
+        if not isinstance(state, dict) or state.get("fingerprint") != self.fingerprint:
+            raise CapeError(
+                f"{self.path}: a checkpoint of another training (another config, data set or "
+                f"seed), not resumed; {fix}"
+            )
+        return state
+
+    def save(self, state: dict[str, Any]) -> None:
+        """Write ``state`` atomically (an interrupted write leaves the previous checkpoint)."""
+        buffer = io.BytesIO()
+        torch.save({**state, "fingerprint": self.fingerprint}, buffer)
+        write_bytes(self.path, buffer.getvalue())
+
+
+def training_fingerprint(**what: Any) -> str:
+    """A digest of everything a training's result depends on (JSON-serialisable values)."""
+    text = json.dumps(what, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def build_model(name: str, spec: dict[str, Any], ts: float, seed: int) -> LearnedModel:
@@ -72,12 +123,14 @@ def train_model(
     progress: bool = True,
     fused: bool = True,
     compile_settings: Mapping[str, Any] | None = None,
+    checkpoint: Checkpointing | None = None,
 ) -> TrainingResult:
     """Train model ``name`` with hyper-parameters ``spec`` (``epochs`` overrides the spec's).
     ``fused``: Adam's fused kernel (one pass over all parameters instead of a loop over the
     tensors: the same update up to rounding, 1.4× faster steps for EPM on one CPU thread).
     ``compile_settings`` (``training.compile``): the training forward and backward compiled by
-    ``torch.compile`` (the same recipe; losses agree with eager ones to about 1e-6 relative)."""
+    ``torch.compile`` (the same recipe; losses agree with eager ones to about 1e-6 relative).
+    ``checkpoint``: resume from it if it exists, and write it every ``every_seconds``."""
     torch.set_num_threads(threads)
     torch.use_deterministic_algorithms(True)
     model = build_model(name, spec, ts, seed)
@@ -97,10 +150,24 @@ def train_model(
     result = TrainingResult(model=model)
     best_state: dict[str, torch.Tensor] | None = None
     start = time.perf_counter()
+    earlier = 0.0  # wall seconds spent before a resume
+    state = checkpoint.load() if checkpoint is not None else None
+    if state is not None:
+        model.load_state_dict(state["model"])
+        optimiser.load_state_dict(state["optimiser"])
+        generator.set_state(state["generator"])
+        torch.set_rng_state(state["rng"])
+        best_state = state["best_state"]
+        result.losses = list(state["losses"])
+        result.best_epoch, result.best_val_loss = state["best_epoch"], state["best_val_loss"]
+        result.resumed_from, earlier = len(result.losses), float(state["wall_seconds"])
+    saved = time.perf_counter()
     bar = tqdm(
-        range(1, n_epochs + 1),
+        range(result.resumed_from + 1, n_epochs + 1),
         desc=f"train {name}",
         unit="epoch",
+        initial=result.resumed_from,
+        total=n_epochs,
         disable=not progress,
         mininterval=0.5 if sys.stderr.isatty() else 30.0,
         file=sys.stderr,
@@ -131,10 +198,24 @@ def train_model(
             best=f"{result.best_val_loss:.3e}@{result.best_epoch}",
             refresh=False,  # the bar's own interval decides when to redraw
         )
+        now = time.perf_counter()
+        if checkpoint is not None and epoch < n_epochs and now - saved >= checkpoint.every_seconds:
+            checkpoint.save({
+                "model": model.state_dict(),
+                "optimiser": optimiser.state_dict(),
+                "generator": generator.get_state(),
+                "rng": torch.get_rng_state(),
+                "best_state": best_state,
+                "losses": result.losses,
+                "best_epoch": result.best_epoch,
+                "best_val_loss": result.best_val_loss,
+                "wall_seconds": earlier + now - start,
+            })  # fmt: skip
+            saved = time.perf_counter()
     if best_state is not None:
         model.load_state_dict(best_state)
     model.eval()
-    result.wall_seconds = time.perf_counter() - start
+    result.wall_seconds = earlier + time.perf_counter() - start
     return result
 
 

@@ -11,13 +11,16 @@ matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt
 
-from cape.io import write_bytes
+from cape.io import write_files
 
 
 def save_figure(fig: plt.Figure, *paths: str | Path, dpi: int = 200) -> None:
-    """Save ``fig`` to each path (format from the suffix), each file written atomically."""
+    """Save ``fig`` to each path (format from the suffix), all files or none
+    (``cape.io.write_files``)."""
+    rendered = {}
     for path in paths:
         buffer = io.BytesIO()
         fig.savefig(buffer, format=Path(path).suffix.lstrip("."), dpi=dpi, bbox_inches="tight")
-        write_bytes(path, buffer.getvalue())
+        rendered[path] = buffer.getvalue()
+    write_files(rendered)
     plt.close(fig)

@@ -16,7 +16,6 @@ penalty, since a lap that ends succeeds before the limit and a failure counts as
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
@@ -27,6 +26,9 @@ import pandas as pd
 from scipy import stats
 
 from cape.errors import CapeError
+from cape.integrity import KEY
+from cape.study.grid import RunId
+from cape.study.record import read_metrics, read_timing, verify_series
 
 KEYS = ["study", "plant", "internal", "controller", "eta", "seed"]
 CELL = ["study", "model", "plant", "internal", "controller", "eta", "eta_label"]
@@ -48,35 +50,33 @@ METRICS = [
 ]
 
 
-def read_run(metrics_path: Path, study: str | None = None) -> dict:
+def read_run(metrics_path: Path, study: str | None = None, expected: RunId | None = None) -> dict:
     """One row of ``study`` (default: the study the run's metrics.json records): the run's
-    metrics and its timing (a run shared by two studies is read once per study)."""
-    try:
-        metrics = json.loads(metrics_path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise CapeError(f"{metrics_path}: unreadable run metrics ({exc}); rerun that run") from None
-    if study is None:
-        study = metrics.get("study")
-        if not isinstance(study, str):
-            raise CapeError(f"{metrics_path}: no `study` in the run's metrics; rerun that run")
-    timing_path = metrics_path.with_name("timing.json")
-    timing = json.loads(timing_path.read_text()) if timing_path.is_file() else {}
+    metrics and its timing (a run shared by two studies is read once per study). The run's
+    files are checked first (``cape.study.record``): its metrics against their schema, their
+    checksum and the run ``expected`` (default: the one the folder names), its timing against
+    its checksum, its series against the digest the timing recorded."""
+    metrics = read_metrics(metrics_path, expected)
+    folder = metrics_path.parent
+    timing = read_timing(folder)
+    verify_series(folder, timing)
     timing = {k: v for k, v in timing.items() if k.startswith("solve_ms")}
-    row = {**metrics, **timing, "study": study, "folder": str(metrics_path.parent)}
+    kept = {k: v for k, v in metrics.items() if k != KEY}
+    row = {**kept, **timing, "study": study or metrics["study"], "folder": str(folder)}
     row["eta_label"] = str(row["eta"])
     row["eta"] = float(row["eta"])
-    row.setdefault("fallbacks", 0)
     return row
 
 
 def collect_runs(
-    runs: Iterable[tuple[str | None, Path]], studies: Mapping[str, Any]
+    runs: Iterable[tuple[str | None, Path] | tuple[str | None, Path, RunId | None]],
+    studies: Mapping[str, Any],
 ) -> pd.DataFrame:
-    """The tidy table of the given runs ((study, metrics.json) pairs; a study of None: the one
-    the run records), sorted by its keys.
+    """The tidy table of the given runs ((study, metrics.json[, the run it must hold]) tuples;
+    a study of None: the one the run records), sorted by its keys.
     ``model`` names the model a run is about: the internal model in a study that varies it (the
     ground-truth study), else the plant's; ``studies`` is the config's ``study.studies``."""
-    rows = [read_run(Path(path), study) for study, path in runs]
+    rows = [read_run(Path(run[1]), run[0], run[2] if len(run) > 2 else None) for run in runs]
     if not rows:
         raise CapeError("no runs to aggregate")
     frame = pd.DataFrame(rows)

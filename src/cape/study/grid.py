@@ -19,7 +19,26 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from cape.errors import CapeError
+
 RUNS_ROOT = "results/runs"
+RUN_FILES = ("metrics.json", "timing.json", "timeseries.parquet")
+"""A run folder's files: written together by ``cape rollout``, the only files it replaces."""
+
+NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_]{0,39}$"
+"""Names that become folder and file names (studies, models, controllers, tracks, sources):
+identifiers of at most 40 characters. The config schema holds the same pattern (a test keeps
+the two equal), so a name can never climb out of ``results/`` or confuse the layout."""
+
+
+def check_name(name: str, where: str) -> str:
+    """``name``, or ``CapeError`` when it is not an identifier (``NAME_PATTERN``)."""
+    if not re.fullmatch(NAME_PATTERN, name):
+        raise CapeError(
+            f"{where} {name!r}: a name is a letter followed by up to 39 letters, digits or "
+            "underscores (it names folders); rename it"
+        )
+    return name
 
 
 @dataclass(frozen=True)
@@ -98,6 +117,40 @@ def study_runs(
                         for seed in seeds:
                             runs.append(RunId(study, plant, internal, controller, eta, seed))
     return runs
+
+
+def count_runs(
+    study_config: Mapping[str, Any], etas: list[str], uses_internal: Callable[[str], bool]
+) -> int:
+    """How many runs ``study_runs`` would list, counted without listing them (a grid of a
+    million seeds is refused by its count, before anything is built)."""
+    seeds = int(study_config["seeds"])
+    total = 0
+    for grid in study_config["studies"].values():
+        per_plant = sum(
+            len(grid.get("internal") or [None]) if uses_internal(c) else 1
+            for c in grid["controllers"]
+        )
+        total += len(grid["plants"]) * per_plant * len(grid.get("eta", etas)) * seeds
+    return total
+
+
+def check_grid_size(
+    study_config: Mapping[str, Any],
+    etas: list[str],
+    uses_internal: Callable[[str], bool],
+    source: str = "config",
+) -> int:
+    """The grid's run count, or ``CapeError`` when it exceeds ``study.max_runs``."""
+    count = count_runs(study_config, etas, uses_internal)
+    limit = int(study_config.get("max_runs", 20000))
+    if count > limit:
+        raise CapeError(
+            f"{source}: the grid of `study` expands to {count:,} runs, more than "
+            f"`study.max_runs` ({limit:,}); check `study.seeds` ({study_config['seeds']}) and "
+            "the studies' lists, or raise `study.max_runs` if you mean it"
+        )
+    return count
 
 
 def canonical(runs: list[RunId]) -> dict[RunId, RunId]:

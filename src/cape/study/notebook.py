@@ -16,6 +16,7 @@ from cape.errors import CapeError
 from cape.plots.style import save_figure
 from cape.study.grid import RunId
 from cape.study.outputs import declared
+from cape.study.record import read_series
 from cape.tables import write_table
 
 
@@ -45,14 +46,15 @@ def run_dir(root: str | Path, row: Mapping[str, Any]) -> Path:
     return run.folder(root)
 
 
+def run_series(root: str | Path, row: Mapping[str, Any]) -> pd.DataFrame:
+    """The time series of the run described by ``row``, checked against the digest its
+    metrics recorded (a damaged run is one message naming its folder, not a traceback)."""
+    return read_series(run_dir(root, row))
+
+
 def series_of(root: str | Path, runs: pd.DataFrame) -> dict[tuple[str, str], pd.DataFrame]:
     """(model, controller) → the time series of each run in ``runs`` (one per pair)."""
-    out = {}
-    for _, row in runs.iterrows():
-        out[(row["model"], row["controller"])] = pd.read_parquet(
-            run_dir(root, row) / "timeseries.parquet"
-        )
-    return out
+    return {(row["model"], row["controller"]): run_series(root, row) for _, row in runs.iterrows()}
 
 
 def _number(value: Any) -> str:

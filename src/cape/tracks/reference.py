@@ -8,6 +8,7 @@ around the previous progress, so a path that passes near itself is not confused.
 
 from __future__ import annotations
 
+import math
 from bisect import bisect_right
 from dataclasses import dataclass
 from functools import cached_property
@@ -15,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from cape.errors import CapeError
 from cape.tracks.geometry import ClosedPath, Projection
 
 
@@ -39,6 +41,24 @@ class ReferencePoints:
         return self.path.curvature(self.s)
 
 
+def ideal_lap_time(path: ClosedPath, v_path: np.ndarray, settings: dict[str, Any]) -> float:
+    """One lap at exactly the reference speed (the scaled, clipped path speed, SPEC §5.2):
+    each segment's length over the speed at its start."""
+    speed = np.clip(float(settings["scale"]) * np.asarray(v_path, dtype=float),
+                    float(settings["v_min"]), float(settings["v_max"]))  # fmt: skip
+    return float(np.sum(path.segment_lengths / speed[: len(path)]))
+
+
+def check_time_limit(time_limit: float, ideal: float) -> None:
+    """Refuse a run time limit no lap could meet: shorter than the reference's ideal lap."""
+    if time_limit < ideal:
+        raise CapeError(
+            f"field `rollout.time_limit` is {time_limit:g} s, shorter than the reference's "
+            f"ideal lap ({ideal:.2f} s at the reference speed): every run would time out. "
+            f"Give at least {math.ceil(ideal)} s (SPEC §5.3 uses 15 s)"
+        )
+
+
 class ReferenceLine:
     """A closed reference path with its speed rule."""
 
@@ -58,6 +78,11 @@ class ReferenceLine:
         # ``points`` (np.interp with a period sorts its table on every call)
         self._knots = [*self.path.s_points.tolist(), self.length]
         self._speeds = [*self.v_path.tolist(), float(self.v_path[0])]
+
+    def ideal_lap_time(self) -> float:
+        """One lap at exactly the reference speed (``ideal_lap_time``)."""
+        settings = {"scale": self.scale, "v_min": self.v_min, "v_max": self.v_max}
+        return ideal_lap_time(self.path, self.v_path, settings)
 
     def v_ref(self, s: np.ndarray | float) -> np.ndarray:
         """Reference speed at arc length ``s``: the scaled, clipped path speed."""

@@ -1,0 +1,190 @@
+"""A run's record on disk: its three files written together, and read back only when intact.
+
+``cape rollout`` writes a run folder (``RUN_FILES``) in one rename; everything that reads it
+(the aggregation, the notebooks, ``cape plot-rollout``) goes through ``read_metrics``,
+``read_timing`` and ``read_series`` here, which refuse a folder whose files do not fit:
+
+- ``metrics.json`` must match its schema (``workflow/schemas/metrics.schema.yaml``: every field
+  a table reads, with its type), the checksum it carries (``sha256``, over the rest: a
+  hand-edited value is refused), and, where the folder names a run, that run (a copy of
+  another run's metrics is refused);
+- ``timing.json`` (wall-clock numbers: solve times, the job's phases) must match the checksum
+  it carries, and ``timeseries.parquet`` the digest it records (``series_sha256``: a
+  truncated or replaced file is refused; the series holds each step's solve time, so its
+  digest lives with the timing, not in the byte-reproducible metrics).
+
+Every refusal is a ``CapeError`` naming the run folder and the fix: delete the folder and
+rerun (Snakemake then recomputes exactly that run).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+from collections.abc import Mapping
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cape.config import REPO_ROOT
+from cape.errors import CapeError
+from cape.integrity import check_record, sealed_record
+from cape.io import write_bytes
+from cape.study.grid import RunId
+
+METRICS_SCHEMA = REPO_ROOT / "workflow" / "schemas" / "metrics.schema.yaml"
+SERIES_KEY = "series_sha256"
+
+
+def series_bytes(columns: Mapping[str, np.ndarray]) -> bytes:
+    """Equal-length float columns as Parquet bytes.
+
+    Built from raw buffers: ``pyarrow.array`` on a NumPy array imports pandas to check its
+    type, a second's start-up in each of thousands of rollout jobs that never use pandas.
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    arrays = []
+    for name, values in columns.items():
+        data = np.ascontiguousarray(values, dtype=np.float64)
+        if data.ndim != 1:
+            raise ValueError(f"column {name!r}: expected one dimension, got shape {data.shape}")
+        arrays.append(pa.Array.from_buffers(pa.float64(), data.size, [None, pa.py_buffer(data)]))
+    sink = io.BytesIO()
+    pq.write_table(pa.Table.from_arrays(arrays, names=list(columns)), sink)
+    return sink.getvalue()
+
+
+def write_run_files(
+    folder: Path, metrics: Mapping[str, Any], series: Mapping[str, np.ndarray]
+) -> str:
+    """``timeseries.parquet`` and ``metrics.json`` (sealed) into ``folder`` (the temporary
+    folder of ``cape.io.atomic_folder``); returns the series' digest, which ``write_timing``
+    records. The series holds the per-step solve times, wall-clock numbers, so its digest
+    goes with the timing, and ``metrics.json`` stays byte-identical across reruns."""
+    data = series_bytes(series)
+    write_bytes(folder / "timeseries.parquet", data)
+    text = json.dumps(sealed_record(metrics), indent=2, sort_keys=True) + "\n"
+    write_bytes(folder / "metrics.json", text.encode())
+    return hashlib.sha256(data).hexdigest()
+
+
+def write_timing(folder: Path, timing: Mapping[str, Any], series_sha256: str) -> None:
+    """``timing.json`` (sealed), with the digest of the run's series."""
+    record = sealed_record({**timing, SERIES_KEY: series_sha256})
+    write_bytes(
+        folder / "timing.json", (json.dumps(record, indent=2, sort_keys=True) + "\n").encode()
+    )
+
+
+def _fix(folder: Path) -> str:
+    return (
+        f"delete the run folder (`rm -r {folder}`) and run snakemake again, which recomputes "
+        "that run"
+    )
+
+
+def _read_json(path: Path, missing: str, fix: str) -> Any:
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise CapeError(f"{path}: {missing}") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise CapeError(f"{path}: unreadable ({exc}); {fix}") from None
+
+
+@cache
+def _validator() -> Any:
+    import yaml
+
+    from cape.config import _jsonschema
+
+    schema = yaml.safe_load(METRICS_SCHEMA.read_text())
+    return _jsonschema().Draft202012Validator(schema)
+
+
+def read_metrics(path: Path, expected: RunId | None = None) -> dict[str, Any]:
+    """A run's ``metrics.json`` (``path``), checked against its schema, its checksum and the
+    run ``expected`` (default: the run its folder names, if it names one)."""
+    folder = path.parent
+    fix = _fix(folder)
+    metrics = _read_json(path, f"missing; run it (`snakemake --cores 1 {path}`)", fix)
+    errors = list(_validator().iter_errors(metrics))
+    if errors:
+        from jsonschema.exceptions import best_match
+
+        first = best_match(errors)  # the field's own type before the rules that depend on it
+        field = ".".join(str(p) for p in first.absolute_path) or "(top level)"
+        more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
+        raise CapeError(
+            f"{path}: field `{field}`: {first.message}{more}; not a run's metrics as "
+            f"`cape rollout` writes them ({METRICS_SCHEMA.relative_to(REPO_ROOT)}); {fix}"
+        )
+    check_record(metrics, path, fix)
+    if expected is None:
+        try:
+            expected = RunId.parse(folder)
+        except ValueError:  # a folder of the user's own (`cape rollout --out DIR`)
+            expected = None
+    if expected is not None:
+        recorded = RunId(
+            metrics["study"],
+            metrics["plant"],
+            metrics["internal"],
+            metrics["controller"],
+            metrics["eta"],
+            metrics["seed"],
+        )
+        if recorded != expected:
+            diff = ", ".join(
+                f"{k} {getattr(recorded, k)!r} (the folder says {getattr(expected, k)!r})"
+                for k in expected.__dataclass_fields__
+                if getattr(recorded, k) != getattr(expected, k)
+            )
+            raise CapeError(f"{path}: the metrics of another run: {diff}; {fix}")
+    return metrics
+
+
+def read_timing(folder: Path) -> dict[str, Any]:
+    """A run's ``timing.json``, checked against the checksum it carries: its solve times (None
+    where the controller solves nothing) and the digest of its series."""
+    path = folder / "timing.json"
+    fix = _fix(folder)
+    timing = _read_json(path, f"missing (the run's files are incomplete); {fix}", fix)
+    if not isinstance(timing, dict) or not isinstance(timing.get(SERIES_KEY), str):
+        raise CapeError(f"{path}: not a run's timing as `cape rollout` writes it; {fix}")
+    for key, value in timing.items():
+        if key.startswith("solve_ms") and not (
+            value is None or (isinstance(value, int | float) and not isinstance(value, bool))
+        ):
+            raise CapeError(f"{path}: field `{key}` is {value!r}, not a number or null; {fix}")
+    check_record(timing, path, fix)
+    return timing
+
+
+def read_series(folder: Path) -> Any:
+    """A run's time series (a pandas DataFrame), checked against the digest in its timing."""
+    import pandas as pd
+
+    return pd.read_parquet(io.BytesIO(verify_series(folder, read_timing(folder))))
+
+
+def verify_series(folder: Path, timing: Mapping[str, Any]) -> bytes:
+    """The bytes of a run's ``timeseries.parquet``, refused unless they are the series its
+    ``timing.json`` recorded (the aggregation checks every run, so that a damaged run stops
+    it, not a notebook)."""
+    path, fix = folder / "timeseries.parquet", _fix(folder)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise CapeError(f"{path}: missing (the run's files are incomplete); {fix}") from None
+    if hashlib.sha256(data).hexdigest() != timing[SERIES_KEY]:
+        raise CapeError(
+            f"{path}: does not match the digest its timing.json recorded (truncated, damaged "
+            f"or replaced since the run); {fix}"
+        )
+    return data
