@@ -20,7 +20,7 @@ from pathlib import Path
 
 from cape.study.grid import RunId
 
-PHASES = ("startup", "build", "lap", "write")
+PHASES = ("startup", "config", "build", "lap", "write")
 
 
 def training(results: Path) -> dict[str, float]:
@@ -66,7 +66,7 @@ def main() -> None:
           f"{'fixed s/job':>11} {'lap s/job':>9} {'ms/step':>8}")  # fmt: skip
     total = fixed_total = 0.0
     for (study, controller), group in sorted(cells.items()):
-        fixed = sum(r["startup"] + r["build"] + r["write"] for r in group)
+        fixed = sum(r["startup"] + r["config"] + r["build"] + r["write"] for r in group)
         lap = sum(r["lap"] for r in group)
         steps = sum(r["steps"] for r in group)
         total += fixed + lap

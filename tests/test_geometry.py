@@ -144,3 +144,53 @@ def test_real_tracks_inside_test(track_dir, config) -> None:
     # the published boundaries lie half a width from the centre line
     offsets = [abs(track.center.project(x, y).offset) for x, y in track.outer.T[::25]]
     np.testing.assert_allclose(offsets, 0.23, atol=2e-3)
+
+
+@pytest.fixture()
+def kernel(tmp_path):
+    """The compiled projection (cape.tracks.native), switched off again after the test."""
+    from cape.tracks import native
+
+    loaded = native.enable({"enabled": True, "cache": str(tmp_path), "compiler": "gcc",
+                            "flags": ["-O2"]})  # fmt: skip
+    if loaded is None:
+        pytest.skip("no C compiler: the NumPy projection runs alone")
+    native.disable()
+    yield loaded
+    native.disable()
+
+
+def test_the_compiled_projection_gives_numpys_bits(kernel, track_dir) -> None:
+    """On a real track's centre line and a dense closed line through it: random points near
+    the path, points at its vertices (where two segments tie), windows that wrap round the
+    start, and no window; every field of every projection the same bits."""
+    from cape.tracks import geometry
+
+    centre = load_track(track_dir, "ETHZMobil", "ethzMobil", 0.46).center
+    dense = ClosedPath(*centre.position(np.linspace(0.0, centre.length, 1200, endpoint=False)))
+    rng = np.random.default_rng(7)
+    for path in (centre, dense):
+        s = np.concatenate([rng.uniform(0, path.length, 1500), rng.uniform(-0.3, 0.3, 300)])
+        points = path.position(s) + rng.normal(0.0, 0.08, (2, s.size))
+        vertices = rng.integers(0, len(path), 300)
+        points = np.hstack([points, np.vstack([path.x[vertices], path.y[vertices]])])
+        hints = np.mod(np.concatenate([s, path.s_points[vertices]]) + 0.02, path.length)
+        for (px, py), hint in zip(points.T, hints, strict=True):
+            for window in (0.5, None):
+                h = hint if window else None
+                geometry._kernel = None
+                expected = path.project(px, py, h, window)
+                geometry._kernel = kernel
+                assert path.project(px, py, h, window) == expected
+        geometry._kernel = None
+
+
+def test_scalar_evaluation_of_a_reference_point_matches_the_arrays(track_dir) -> None:
+    """``ReferencePoints.at`` (what the loop reads each step) against the vectorised arrays."""
+    from cape.tracks.reference import ReferencePoints
+
+    path = load_track(track_dir, "ETHZMobil", "ethzMobil", 0.46).center
+    s = np.random.default_rng(3).uniform(-1.0, path.length + 1.0, 2000)
+    ref = ReferencePoints(s=s, speed=np.ones_like(s), path=path)
+    for k in range(s.size):
+        assert ref.at(k) == (ref.x[k], ref.y[k], ref.heading[k])

@@ -13,8 +13,6 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from cape.errors import CapeError
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -171,6 +169,8 @@ def _jsonschema() -> Any:
 
 def validate_config(config: dict[str, Any], source: str = "config") -> dict[str, Any]:
     """Validate ``config`` against the schema (filling defaults) and the cross-field rules."""
+    import yaml
+
     jsonschema = _jsonschema()
     schema = yaml.safe_load(SCHEMA_PATH.read_text())
     _fill_defaults(config, schema)
@@ -199,6 +199,8 @@ def load_config(path: str | Path = DEFAULT_CONFIG) -> dict[str, Any]:
         raise CapeError(
             f"config file {path} not found; run from the repository root or pass --config PATH."
         )
+    import yaml  # here: a rule's job reads its config as JSON
+
     try:
         config = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:

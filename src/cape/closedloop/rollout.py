@@ -32,6 +32,9 @@ class RolloutResult:
     metrics: dict[str, Any]
     series: dict[str, np.ndarray]
     solve_ms: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    plant_s: float = 0.0
+    """Wall seconds spent in the plant's steps (the lap's other parts: the controller's solve
+    times, and the loop around both)."""
 
 
 def initial_state(line: ReferenceLine, vx0: float) -> np.ndarray:
@@ -66,8 +69,9 @@ def run_lap(
     z = disturbances.measure(x)
     proj_seen = seen.reset(z[0], z[1])
     controller.reset(z)
-    rows: dict[str, list[float]] = {k: [] for k in SERIES_KEYS}
+    rows: list[tuple[float, ...]] = []  # one per step, the columns of SERIES_KEYS
     solve_ms: list[float] = []
+    plant_s = 0.0
     failure: str | None = None
     lap_time: float | None = None
     steps = 0
@@ -88,19 +92,22 @@ def run_lap(
         rescued += bool(info.get("rescued", False))
         if "iterations" in info:
             iterations.append(int(info["iterations"]))
-        if not np.all(np.isfinite(u_cmd)):
+        if not np.isfinite(u_cmd).all():
             failure = "diverged"
             break
         u_app = disturbances.actuate(u_cmd)
-        x = disturbances.after_plant(plant.step(u_app))
+        start = time.perf_counter()
+        x_plant = plant.step(u_app)
+        plant_s += time.perf_counter() - start
+        x = disturbances.after_plant(x_plant)
         steps = k + 1
-        if not np.all(np.isfinite(x)):
+        if not np.isfinite(x).all():
             failure = "diverged"
             break
         last_pose = x[:2].copy()
         proj_car = car.update(x[0], x[1])
         # tracking errors against the reference point issued for this step (k = 1)
-        x_ref, y_ref, psi_ref = float(ref.x[1]), float(ref.y[1]), float(ref.heading[1])
+        x_ref, y_ref, psi_ref = ref.at(1)
         dx, dy = x_ref - x[0], y_ref - x[1]
         e_x = dx * math.cos(psi_ref) + dy * math.sin(psi_ref)
         e_y = -dx * math.sin(psi_ref) + dy * math.cos(psi_ref)
@@ -109,7 +116,7 @@ def run_lap(
         z = disturbances.measure(x)
         reference = (x_ref, y_ref, psi_ref, float(ref.speed[1]))
         errors = (e_x, e_y, e_cte, wrap_angle(psi_path - x[2]))
-        _append(rows, (k + 1) * ts, x, z, reference, u_cmd, u_app, errors, solve_ms[-1])
+        rows.append(((k + 1) * ts, *x, *z, *reference, *u_cmd, *u_app, *errors, solve_ms[-1]))
         on_centre = track.center.project(x[0], x[1], s_hint=centre_s, window=line.window)
         centre_s = on_centre.s
         if abs(on_centre.offset) > track.width / 2:
@@ -121,7 +128,8 @@ def run_lap(
         proj_seen = seen.update(z[0], z[1])
     else:
         failure = "timeout"
-    series = {key: np.asarray(values, dtype=float) for key, values in rows.items()}
+    table = np.array(rows, dtype=float).reshape(-1, len(SERIES_KEYS))
+    series = {key: np.ascontiguousarray(table[:, j]) for j, key in enumerate(SERIES_KEYS)}
     metrics = summarise(series, failure, lap_time, steps, time_limit, penalty)
     metrics["fallbacks"] = sum(fallback_steps)  # steps whose solve failed (model-based)
     metrics["rescues"] = rescued  # steps the SQP left to its IPOPT rescue
@@ -131,7 +139,7 @@ def run_lap(
     metrics.update(
         failure_location(failure, car.total, line.length, last_pose, fallback_steps, window)
     )
-    return RolloutResult(metrics=metrics, series=series, solve_ms=np.asarray(solve_ms))
+    return RolloutResult(metrics, series, np.asarray(solve_ms), plant_s)
 
 
 def failure_location(
@@ -165,12 +173,6 @@ SERIES_KEYS = (
     "T_cmd", "delta_cmd", "T_applied", "delta_applied",
     "e_x", "e_y", "e_cte", "e_psi", "solve_ms",
 )  # fmt: skip
-
-
-def _append(rows, t, x, z, ref, u_cmd, u_app, errors, solve) -> None:
-    values = [t, *x, *z, *ref, *u_cmd, *u_app, *errors, solve]
-    for key, value in zip(SERIES_KEYS, values, strict=True):
-        rows[key].append(float(value))
 
 
 def summarise(

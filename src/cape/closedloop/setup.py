@@ -24,6 +24,7 @@ from cape.errors import CapeError
 from cape.integrity import check_arrays, check_record
 from cape.models.registry import model_class
 from cape.models.trained import TrainedModel, load_physics, load_trained, read_meta
+from cape.tracks import native
 from cape.tracks.reference import ReferenceLine, check_time_limit
 from cape.tracks.track import Track, load_raceline, load_track
 from cape.vehicle.params import ACTUATOR_LIMITS, GROUND_TRUTH
@@ -194,6 +195,7 @@ def build_run(
         raise CapeError(
             f"--controller {controller_name}: not in the config's `controllers` ({known})"
         )
+    native.enable(section(config, "rollout").get("compile"))  # projections in C: same numbers
     line, track = load_reference(config, raceline)
     check_time_limit(float(section(config, "rollout")["time_limit"]), line.ideal_lap_time())
     disturbances = DisturbancePipeline.from_config(section(config, "disturbances"), eta, seed)

@@ -33,6 +33,7 @@ from cape.config import REPO_ROOT
 from cape.errors import CapeError
 from cape.integrity import check_record, sealed_record
 from cape.io import write_bytes
+from cape.parquet import parquet_bytes
 from cape.study.grid import RunId
 
 METRICS_SCHEMA = REPO_ROOT / "workflow" / "schemas" / "metrics.schema.yaml"
@@ -40,23 +41,9 @@ SERIES_KEY = "series_sha256"
 
 
 def series_bytes(columns: Mapping[str, np.ndarray]) -> bytes:
-    """Equal-length float columns as Parquet bytes.
-
-    Built from raw buffers: ``pyarrow.array`` on a NumPy array imports pandas to check its
-    type, a second's start-up in each of thousands of rollout jobs that never use pandas.
-    """
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    arrays = []
-    for name, values in columns.items():
-        data = np.ascontiguousarray(values, dtype=np.float64)
-        if data.ndim != 1:
-            raise ValueError(f"column {name!r}: expected one dimension, got shape {data.shape}")
-        arrays.append(pa.Array.from_buffers(pa.float64(), data.size, [None, pa.py_buffer(data)]))
-    sink = io.BytesIO()
-    pq.write_table(pa.Table.from_arrays(arrays, names=list(columns)), sink)
-    return sink.getvalue()
+    """Equal-length float columns as Parquet bytes (``cape.parquet``: no pyarrow to import in
+    each of thousands of rollout jobs)."""
+    return parquet_bytes(columns)
 
 
 def write_run_files(

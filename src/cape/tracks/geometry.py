@@ -11,8 +11,13 @@ from __future__ import annotations
 import math
 from bisect import bisect_right
 from dataclasses import dataclass
+from functools import cached_property
+from typing import Any
 
 import numpy as np
+
+_kernel: Any = None
+"""The compiled projection (``cape.tracks.native.enable``), or None: NumPy."""
 
 
 def wrap_angle(a: float) -> float:
@@ -216,8 +221,13 @@ class ClosedPath:
 
         With ``s_hint`` and ``window`` only segments within ``window`` of arc length around
         ``s_hint`` are searched, so a path passing near itself (a hairpin) is not confused.
-        Ties go to the lowest segment index.
+        Ties go to the lowest segment index. With the compiled kernel enabled
+        (``cape.tracks.native``) the same numbers come from C.
         """
+        kernel = _kernel
+        if (kernel is not None and math.isfinite(px) and math.isfinite(py)
+                and (s_hint is None or math.isfinite(s_hint))):  # fmt: skip
+            return kernel.project(self, px, py, s_hint, window)
         idx = self._candidates(s_hint, window)
         ax, ay, dx, dy, len2, bx, by, seg_len = self._segments[:, idx]  # one gather
         t = np.clip(((px - ax) * dx + (py - ay) * dy) / len2, 0.0, 1.0)
@@ -234,6 +244,15 @@ class ClosedPath:
         return Projection(
             s=s, offset=side * float(dist[k]), segment=i, x=float(qx[k]), y=float(qy[k])
         )
+
+    @cached_property
+    def _kernel_arrays(self) -> tuple[int, int, int, float]:
+        """What the compiled projection reads: the segment table's and the start arc lengths'
+        addresses (the arrays live as long as the path), the segment count, the length."""
+        segments = np.ascontiguousarray(self._segments)
+        s_points = np.ascontiguousarray(self.s_points)
+        self._kernel_keep = (segments, s_points)
+        return segments.ctypes.data, s_points.ctypes.data, len(self), self.length
 
     def project_many(self, px: np.ndarray, py: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The nearest points of the whole path to many points at once (no window): their arc

@@ -22,19 +22,38 @@ from cape.tracks.geometry import ClosedPath, Projection
 
 @dataclass(frozen=True)
 class ReferencePoints:
-    """Points k = 0 … N of the reference: arrays of length N+1. Heading and curvature are
-    evaluated on the path when first asked for (the controllers mostly need neither, and each
-    costs several spline evaluations per step)."""
+    """Points k = 0 … N of the reference: arrays of length N+1. Positions, heading and
+    curvature are evaluated on the path when first asked for: an NMPC reads every point's
+    position, PID and RISE none, the loop one point (``at``), and each array costs spline
+    evaluations per step."""
 
     s: np.ndarray
-    x: np.ndarray
-    y: np.ndarray
     speed: np.ndarray
     path: ClosedPath
 
     @cached_property
+    def _xy(self) -> np.ndarray:
+        return self.path.position(self.s)
+
+    @property
+    def x(self) -> np.ndarray:
+        return self._xy[0]
+
+    @property
+    def y(self) -> np.ndarray:
+        return self._xy[1]
+
+    @cached_property
     def heading(self) -> np.ndarray:
         return self.path.heading(self.s)
+
+    def at(self, k: int) -> tuple[float, float, float]:
+        """Point k's position and heading: the same numbers as ``x[k]``, ``y[k]``,
+        ``heading[k]``, from the path's scalar evaluations (a test holds them equal), without
+        evaluating the other points."""
+        s = float(self.s[k])
+        x, y = self.path.position_at(s)
+        return x, y, self.path.heading_at(s)
 
     @cached_property
     def curvature(self) -> np.ndarray:
@@ -103,21 +122,19 @@ class ReferenceLine:
         """Projection near ``s_hint`` (global search when there is none)."""
         if s_hint is None:
             return self.path.project(px, py)
-        return self.path.project(
-            px, py, s_hint=float(np.mod(s_hint, self.length)), window=self.window
-        )
+        # Python's % on floats is NumPy's mod, bit for bit, without NumPy's per-call cost
+        return self.path.project(px, py, s_hint=float(s_hint) % self.length, window=self.window)
 
     def points(self, s0: float, n: int) -> ReferencePoints:
         """Reference points k = 0 … n starting at progress ``s0``."""
+        v_ref, ts = self._v_ref_scalar, self.ts
         s, speed = [float(s0)], []
         for _ in range(n):
-            v = self._v_ref_scalar(s[-1])
+            v = v_ref(s[-1])
             speed.append(v)
-            s.append(s[-1] + v * self.ts)
-        speed.append(self._v_ref_scalar(s[-1]))
-        s_arr = np.array(s)
-        xy = self.path.position(s_arr)
-        return ReferencePoints(s=s_arr, x=xy[0], y=xy[1], speed=np.array(speed), path=self.path)
+            s.append(s[-1] + v * ts)
+        speed.append(v_ref(s[-1]))
+        return ReferencePoints(s=np.array(s), speed=np.array(speed), path=self.path)
 
 
 class ProgressTracker:

@@ -1,0 +1,114 @@
+"""What one rollout job costs, measured from outside as Snakemake runs it, phase by phase.
+
+Runs the real ``cape rollout`` command with the arguments the workflow's rule gives it (the
+config sections as JSON, ``--model NAME=DIR``) for PID and for each NMPC with a learned internal
+model, on the ground-truth plant, interleaved in rounds with a bare ``python -c "import numpy,
+casadi"`` (the floor of any job that needs them), and prints per job kind the medians of:
+
+- ``process``: the wall time from outside, as ``subprocess`` sees it;
+- ``fixed``: process minus the lap (the job's price for not being a lap: interpreter, imports,
+  config, building the run, writing, exit), the figure issue 22 bounds (≤ 0.3 s for PID,
+  ≤ 0.4 s for an NMPC with a learned internal model);
+- the phases the job times itself (``timing.json``'s ``job_s``): ``startup`` (cape's command
+  modules and arguments), ``config``, ``build``, ``write``, and ``outside`` (what no phase
+  covers: the interpreter's start, the imports before cape's first clock, the exit);
+- per step of the lap (ms): ``controller``, ``plant`` and ``loop`` (reference points,
+  projections, disturbances, recording: the lap minus the other two).
+
+    python benchmarks/rollout_job.py [--rounds 5] [--internal epm] [--eta 1]
+                                     [--controllers pid nmpc anmpc rnmpc]
+
+It needs what the rollouts need: ``snakemake --cores 2 results/models/epm/network.npz
+results/raceline/ETHZMobil.npz``, and the compiled solvers (``snakemake --cores 2
+results/solvers/nmpc/epm.json`` …; the first job of each controller compiles otherwise, and
+that round is then dropped from the medians).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from cape.config import load_config
+
+REPO = Path(__file__).resolve().parents[1]
+SECTIONS = ("tracks", "data", "reference", "disturbances", "rollout", "models")
+"""What the workflow's rollout rule passes (workflow/rules/common.smk, rollout_config_json)."""
+
+
+def job_command(config: dict[str, Any], controller: str, internal: str, eta: str, out: Path,
+                models: Path) -> list[str]:  # fmt: skip
+    """The command line the rollout rule runs for one run on the ground-truth plant."""
+    sections = {k: config[k] for k in SECTIONS}
+    sections["controllers"] = {controller: config["controllers"][controller]}
+    learned = controller != "pid"
+    command = ["cape", "rollout", "--study", "truth", "--plant", "truth", "--controller",
+               controller, "--internal", internal if learned else "truth", "--eta", eta,
+               "--seed", "0", "--out", str(out), "--raceline",
+               str(REPO / "results" / "raceline" / f"{config['reference']['track']}.npz"),
+               "--config-json", json.dumps(sections, sort_keys=True)]  # fmt: skip
+    if learned:
+        command += ["--model", f"{internal}={models / internal}"]
+    return command
+
+
+def timed(command: list[str]) -> float:
+    start = time.perf_counter()
+    subprocess.run(command, cwd=REPO, check=True, stdout=subprocess.DEVNULL)
+    return time.perf_counter() - start
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--internal", default="epm")
+    parser.add_argument("--eta", default="1")
+    parser.add_argument("--controllers", nargs="+", default=["pid", "nmpc", "anmpc", "rnmpc"])
+    parser.add_argument("--models", type=Path, default=REPO / "results" / "models")
+    args = parser.parse_args()
+    config = load_config(REPO / "config" / "config.yaml")
+    floor = [sys.executable, "-c", "import numpy, casadi"]
+    rows: dict[str, list[dict[str, float]]] = {name: [] for name in ["floor", *args.controllers]}
+    with tempfile.TemporaryDirectory() as tmp:
+        for r in range(args.rounds + 1):  # round 0 warms the caches and is not counted
+            rows_now = {"floor": {"process": timed(floor)}}
+            for controller in args.controllers:
+                out = Path(tmp) / f"{controller}{r}"
+                command = job_command(config, controller, args.internal, args.eta, out,
+                                      args.models)  # fmt: skip
+                wall = timed(command)
+                job = json.loads((out / "timing.json").read_text())["job_s"]
+                steps = max(int(job["steps"]), 1)
+                inside = sum(job[k] for k in ("startup", "config", "build", "lap", "write"))
+                rows_now[controller] = {
+                    "process": wall,
+                    "fixed": wall - job["lap"],
+                    "outside": wall - inside,
+                    **{k: job[k] for k in ("startup", "config", "build", "write")},
+                    "controller ms/step": 1e3 * job["controller"] / steps,
+                    "plant ms/step": 1e3 * job["plant"] / steps,
+                    "loop ms/step": 1e3 * (job["lap"] - job["controller"] - job["plant"]) / steps,
+                }
+            if r:
+                for name, row in rows_now.items():
+                    rows[name].append(row)
+    columns = ["process", "fixed", "outside", "startup", "config", "build", "write",
+               "controller ms/step", "plant ms/step", "loop ms/step"]  # fmt: skip
+    print(f"medians of {args.rounds} rounds (s unless ms/step); ground-truth plant, η = "
+          f"{args.eta}, internal model {args.internal} for the NMPCs")  # fmt: skip
+    print(f"{'job':8}" + "".join(f"{c:>20}" for c in columns))
+    for name, group in rows.items():
+        cells = [statistics.median(r[c] for r in group) if c in group[0] else None
+                 for c in columns]  # fmt: skip
+        print(f"{name:8}" + "".join(f"{'':>20}" if v is None else f"{v:>20.4f}" for v in cells))
+
+
+if __name__ == "__main__":
+    main()
