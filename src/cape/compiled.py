@@ -17,6 +17,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -64,6 +65,39 @@ def cached_functions(
         return None
     verify_library(library)
     return {key: ca.external(name, str(library)) for key, name in names.items()}, library
+
+
+def source_digest(*modules: Any) -> str:
+    """A digest of the source files of ``modules`` (what a cached function is built by: any
+    edit of them gives a new key, so a stale cache entry is never read)."""
+    h = hashlib.sha256()
+    for module in modules:
+        h.update(Path(module.__file__).read_bytes())
+    return h.hexdigest()
+
+
+def serialized_function(
+    name: str, key: str, build: Callable[[], ca.Function], settings: dict[str, Any] | None
+) -> ca.Function:
+    """``build()``, or the same function read back from the cache (``settings``: the
+    ``rollout.compile`` entry; its ``cache`` folder, when ``enabled``).
+
+    Building a function from the shared equations costs tens of milliseconds of Python per
+    rollout job; deserialising it, under a millisecond. The serialised form evaluates the same
+    instructions in CasADi's virtual machine, so the same numbers. ``key`` must name
+    everything the function depends on (its constants, and ``source_digest`` of the code that
+    builds it); the file carries a checksum beside it, as the compiled libraries do."""
+    if not settings or not settings.get("enabled", False) or not settings.get("cache"):
+        return build()
+    digest = hashlib.sha256(f"{name}|{key}|{ca.__version__}".encode()).hexdigest()[:16]
+    path = Path(str(settings["cache"])) / "functions" / f"{name}_{digest}.casadi"
+    if path.is_file():
+        check_sidecar(path, f"delete {path} (and its .sha256); the next run rebuilds it")
+        return ca.Function.deserialize(path.read_text())
+    function = build()
+    write_text(path, function.serialize())
+    write_text(sidecar(path), file_digest(path) + "\n")
+    return function
 
 
 def verify_library(library: Path) -> None:

@@ -13,6 +13,7 @@ controller.
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
@@ -20,6 +21,7 @@ import casadi as ca
 import numpy as np
 
 from cape.buffered import BufferedCall
+from cape.compiled import serialized_function, source_digest
 from cape.models.physics import ModelPhysics
 from cape.models.trained import TrainedModel
 from cape.vehicle.backend import ops_for
@@ -147,14 +149,28 @@ class TruthPlant:
     function of the shared equations, called through its buffer)."""
 
     def __init__(
-        self, params: Mapping[str, Any], ts: float, transform: ParamTransform | None = None
+        self,
+        params: Mapping[str, Any],
+        ts: float,
+        transform: ParamTransform | None = None,
+        cache: dict[str, Any] | None = None,
     ) -> None:
+        """``cache``: the ``rollout.compile`` settings, whose cache keeps the built function
+        (``cape.compiled.serialized_function``: the same function, without building it)."""
         self.ts = ts
         self.params = (transform or _identity)(params)
         self.x = np.zeros(6)
-        x, u = ca.SX.sym("x", 6), ca.SX.sym("u", 2)
-        rk4 = rk4_step(lambda x, v: state_derivative(x, v, self.params), x, u, ts)
-        self._step = BufferedCall(ca.Function("truth_rk4", [x, u], [rk4]))
+
+        def build() -> ca.Function:
+            x, u = ca.SX.sym("x", 6), ca.SX.sym("u", 2)
+            rk4 = rk4_step(lambda x, v: state_derivative(x, v, self.params), x, u, ts)
+            return ca.Function("truth_rk4", [x, u], [rk4])
+
+        from cape.vehicle import backend, dynamics, integrators
+
+        key = repr((sorted(self.params.items()), ts))
+        key += source_digest(sys.modules[__name__], dynamics, integrators, backend)
+        self._step = BufferedCall(serialized_function("truth_rk4", key, build, cache))
 
     def reset(self, x0: np.ndarray) -> None:
         self.x = np.asarray(x0, dtype=float).copy()

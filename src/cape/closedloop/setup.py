@@ -203,7 +203,8 @@ def build_run(
     loaded: dict[str, TrainedModel] = {}
     folders = ModelFolders.of(models_dir)
     if kind == "truth":
-        plant: Plant = TruthPlant(GROUND_TRUTH.as_dict(), ts, transform)
+        compiled = section(config, "rollout").get("compile")
+        plant: Plant = TruthPlant(GROUND_TRUTH.as_dict(), ts, transform, compiled)
     elif kind == "learned":
         trained = load_trained(
             folders(str(model_name)), model_name, section(config, "rollout").get("compile")
