@@ -222,7 +222,8 @@ def run_notebook(arguments):
         + arguments
         + " > {log} 2>&1"
         " && jupyter nbconvert --to html {output.notebook}.part.ipynb --output-dir results/notebooks"
-        " --output $(basename {output.html} .html) >> {log} 2>&1"
+        " --output $(basename {output.html} .html)"
+        " --HTMLExporter.preprocessors=cape.study.notebook_html.ShortParameters >> {log} 2>&1"
         " && mv {output.notebook}.part.ipynb {output.notebook}"
     )
 
