@@ -4,6 +4,7 @@ import json
 import os
 import sys
 
+from snakemake.io import report as in_report  # `report(` opening a line is Snakemake's directive
 from snakemake.utils import validate
 
 from cape.config import check_consistency
@@ -205,6 +206,22 @@ def figures(notebook, folder, ext):
     """The figures a notebook declares (cape.study.outputs), as files in ``folder``."""
     declared = {**STUDY_NOTEBOOKS, **WHOLE_STUDY_NOTEBOOKS}[notebook]
     return [f"{folder}/{name}{ext}" for name in declared.figures]
+
+
+def reported_figures(notebook, folder, caption, category):
+    """The PNG copies of a notebook's figures for the report, each labelled with its number and
+    its title (cape.study.outputs): a category then lists its figures in order, by what they
+    show, rather than by file name under one shared caption."""
+    declared = {**STUDY_NOTEBOOKS, **WHOLE_STUDY_NOTEBOOKS}[notebook]
+    return [
+        in_report(
+            f"{folder}/{name}.png",
+            caption=caption,
+            category=category,
+            labels={"figure": name[:5], "title": title},
+        )
+        for name, title in declared.figures.items()
+    ]
 
 
 def tables(notebook, folder):
