@@ -1,17 +1,26 @@
-"""The Snakemake workflow: lint-clean, plans the targets, and fails clearly without data."""
+"""The Snakemake workflow: lint-clean, plans the targets, and fails clearly without data; the
+smoke study builds everything, and its executed notebooks show what they save."""
 
 from __future__ import annotations
 
+import base64
+import hashlib
+import html
+import json
+import re
 import shutil
 import subprocess
+from html.parser import HTMLParser
 from pathlib import Path
 
 import pytest
 import yaml
 
 from cape.config import REPO_ROOT
+from cape.study.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS
 
 SNAKEFILE = REPO_ROOT / "Snakefile"
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
 
 def _snakemake(
@@ -36,6 +45,47 @@ def _workdir(tmp_path: Path, **track_overrides: object) -> Path:
     cfg["tracks"].update(track_overrides)
     (work / "config" / "config.yaml").write_text(yaml.safe_dump(cfg))
     return work
+
+
+def _digest(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()[:16]
+
+
+def _shown_pngs(notebook: Path) -> list[bytes]:
+    """The PNG images an executed notebook shows, in order."""
+    cells = json.loads(notebook.read_text())["cells"]
+    outputs = [o for c in cells for o in c.get("outputs", [])]
+    pngs = [o["data"]["image/png"] for o in outputs if "image/png" in o.get("data", {})]
+    return [base64.b64decode(png) for png in pngs]
+
+
+class _Page(HTMLParser):
+    """An HTML copy as a reader gets it: its visible text and its embedded PNG images."""
+
+    def __init__(self, text: str) -> None:
+        super().__init__()
+        self.text: list[str] = []
+        self.pngs: list[bytes] = []
+        self._hidden = 0
+        self.feed(text)
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        self._hidden += tag in ("style", "script")
+        src = dict(attrs).get("src") or ""
+        if tag == "img" and src.startswith("data:image/png;base64,"):
+            self.pngs.append(base64.b64decode(src.split(",", 1)[1]))
+
+    def handle_endtag(self, tag: str) -> None:
+        self._hidden -= tag in ("style", "script")
+
+    def handle_data(self, data: str) -> None:
+        if not self._hidden:
+            self.text.append(data)
+
+
+def _png_size(path: Path) -> tuple[int, int]:
+    header = path.read_bytes()[16:24]  # IHDR: width, height
+    return int.from_bytes(header[:4], "big"), int.from_bytes(header[4:], "big")
 
 
 def test_lint_is_clean() -> None:
@@ -116,19 +166,55 @@ def test_smoke_config_builds_the_model_tables(tmp_path: Path) -> None:
     )
 
 
-@pytest.mark.slow
-def test_the_smoke_study_builds_every_table_figure_and_notebook(tmp_path: Path) -> None:
-    """The whole workflow on the smoke slice, from nothing: every output of `snakemake` exists,
-    every notebook ran, and every run of the grid is in the aggregated table. CI runs this."""
-    import pandas as pd
-
+def test_the_setup_notebook_shows_the_figure_and_tables_it_saves(tmp_path: Path) -> None:
+    """Through the real rule (papermill, then nbconvert): the executed notebook holds the saved
+    PNG itself, at 100 pixels per figure inch, and each table as its saved .md prints it; the
+    HTML copy embeds the same image and names the config sections instead of printing their
+    JSON."""
     work = _workdir(tmp_path)
+    result = _snakemake("--cores", "1", "-d", str(work), "results/notebooks/setup.html")
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    notebook = work / "results/notebooks/setup.ipynb"
+    figure = work / "results/figures/fig01_block_diagram.png"
+    assert [_digest(p) for p in _shown_pngs(notebook)] == [_digest(figure.read_bytes())]
+    outputs = [o for c in json.loads(notebook.read_text())["cells"] for o in c.get("outputs", [])]
+    image = next(o for o in outputs if "image/png" in o.get("data", {}))
+    assert image["metadata"]["image/png"]["width"] == round(_png_size(figure)[0] / 2)  # 200 dpi
+    shown_tables = [o["data"]["text/plain"] for o in outputs if "text/html" in o.get("data", {})]
+    saved_tables = [
+        (work / f"results/tables/{name}.md").read_text()
+        for name in WHOLE_STUDY_NOTEBOOKS["setup"].tables
+    ]
+    assert ["".join(t) for t in shown_tables] == saved_tables
+    page = _Page((work / "results/notebooks/setup.html").read_text())
+    assert [_digest(p) for p in page.pngs] == [_digest(figure.read_bytes())]
+    text = "".join(page.text)
+    assert 'config_json = "{' not in text  # the JSON papermill injected ...
+    sections = "controllers, disturbances, models"
+    assert f'config_json = "…"  # JSON of the config sections {sections}' in text
+    assert "Study set-up" in text and "Table 3" in text  # ... and the rest of the page
+
+
+@pytest.fixture(scope="module")
+def smoke_study(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The whole workflow on the smoke slice, from nothing, once for the slow tests below."""
+    work = _workdir(tmp_path_factory.mktemp("smoke"))
     shutil.copy(REPO_ROOT / "config" / "smoke.yaml", work / "config" / "smoke.yaml")
     # about 4 minutes on 2 idle cores; the timeout only guards against a hang
     result = _snakemake(
         "--cores", "2", "-d", str(work), "--configfile", "config/smoke.yaml", timeout=1800
     )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    return work
+
+
+@pytest.mark.slow
+def test_the_smoke_study_builds_every_table_figure_and_notebook(smoke_study: Path) -> None:
+    """Every output of `snakemake` exists, every notebook ran, and every run of the grid is in
+    the aggregated table. CI runs this."""
+    import pandas as pd
+
+    work = smoke_study
     runs = pd.read_parquet(work / "results/study/runs.parquet")
     assert set(runs["study"]) == {"learned", "bicycle", "ablation", "truth"}
     # the smoke grid by hand (config/smoke.yaml; one seed; PID and RISE have no internal model):
@@ -152,3 +238,105 @@ def test_the_smoke_study_builds_every_table_figure_and_notebook(tmp_path: Path) 
         assert (work / "results/notebooks" / f"{name}.html").stat().st_size > 10_000
     scorecard = pd.read_csv(work / "results/tables/table08_scorecard.csv")
     assert {"paper", "ours", "ci95", "holds"} <= set(scorecard.columns)
+
+
+def _smoke_notebooks(work: Path) -> dict[str, tuple[Path, tuple[str, ...]]]:
+    """Each executed notebook of the smoke study → the folder of its figures and the figures
+    it declares (cape.study.outputs), in order."""
+    config = yaml.safe_load((work / "config" / "config.yaml").read_text())
+    smoke = yaml.safe_load((work / "config" / "smoke.yaml").read_text())
+    figures = work / "results" / "figures"
+    out = {
+        "setup": (figures, tuple(WHOLE_STUDY_NOTEBOOKS["setup"].figures)),
+        "scorecard": (figures, tuple(WHOLE_STUDY_NOTEBOOKS["scorecard"].figures)),
+    }
+    for study, grid in config["study"]["studies"].items():
+        kind = {**grid, **smoke["study"]["studies"].get(study, {})}.get("kind", "closed_loop")
+        out[study] = (figures / study, tuple(STUDY_NOTEBOOKS[kind].figures))
+        out[f"failures_{study}"] = (figures / study, tuple(STUDY_NOTEBOOKS["failures"].figures))
+    return out
+
+
+@pytest.mark.slow
+def test_every_smoke_notebook_shows_each_figure_it_saves(smoke_study: Path) -> None:
+    """Each executed notebook holds, in order, the very PNG files of the figures it declares,
+    and its HTML copy embeds them."""
+    notebooks = _smoke_notebooks(smoke_study)
+    assert len(notebooks) == 10
+    for name, (folder, figures) in notebooks.items():
+        saved = [_digest((folder / f"{figure}.png").read_bytes()) for figure in figures]
+        shown = [_digest(p) for p in _shown_pngs(smoke_study / f"results/notebooks/{name}.ipynb")]
+        page = _Page((smoke_study / f"results/notebooks/{name}.html").read_text())
+        assert shown == saved, name
+        assert [_digest(p) for p in page.pngs] == saved, name
+    assert sum(len(figures) for _, figures in notebooks.values()) == 22  # 1 + 2 × 7 + 2 + 1 + 4
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(
+    CHROMIUM is None, reason="no Chromium to open the page in (Debian: apt-get install chromium)"
+)
+def test_a_notebook_page_shows_its_figures_in_a_real_browser(
+    smoke_study: Path, tmp_path: Path
+) -> None:
+    """learned.html in headless Chromium: every figure decodes to the saved PNG's size and is
+    laid out at a size that reads (not collapsed, not wider than the window)."""
+    assert CHROMIUM is not None
+    # the page as it is, plus a script that, once everything has loaded, writes each image's
+    # decoded and laid-out size into the page, which --dump-dom then prints
+    probe = (
+        "<script>window.addEventListener('load', () => {"
+        " const sizes = [...document.images].map("
+        "  i => [i.naturalWidth, i.naturalHeight, i.clientWidth, i.clientHeight]);"
+        " const out = document.createElement('pre'); out.id = 'cape-image-sizes';"
+        " out.textContent = JSON.stringify(sizes); document.body.appendChild(out); });</script>"
+    )
+    text = (smoke_study / "results/notebooks/learned.html").read_text()
+    page = tmp_path / "learned.html"
+    page.write_text(text.replace("</body>", probe + "</body>"))
+    width = 1400
+    # the flags of a closed network: no background connection Chromium would wait for
+    command = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+               "--no-first-run", "--disable-background-networking", "--disable-component-update",
+               "--disable-sync", f"--user-data-dir={tmp_path / 'profile'}",
+               f"--window-size={width},1000", "--dump-dom", page.as_uri()]  # fmt: skip
+    result = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    found = re.search(r'<pre id="cape-image-sizes">(.*?)</pre>', result.stdout)
+    assert found, result.stdout[-2000:] + result.stderr[-2000:]
+    sizes = json.loads(html.unescape(found.group(1)))
+    figures = STUDY_NOTEBOOKS["closed_loop"].figures
+    assert len(sizes) == len(figures)
+    for (natural_w, natural_h, shown_w, shown_h), name in zip(sizes, figures, strict=True):
+        saved = smoke_study / f"results/figures/learned/{name}.png"
+        assert (natural_w, natural_h) == _png_size(saved), name
+        assert 300 <= shown_w <= width and shown_h > 0, (name, shown_w, shown_h)
+
+
+@pytest.mark.slow
+def test_a_damaged_run_stops_what_reads_it_and_is_recomputed_once_deleted(
+    smoke_study: Path, tmp_path: Path
+) -> None:
+    """A truncated time series in a copy of the smoke study: the aggregation and the notebook
+    that draws the run each stop with one message naming the run's folder and the fix; the
+    notebook leaves no `.part.ipynb` among the results (its executed copy goes beside its log);
+    deleting the folder, as the message says, and rerunning recomputes the run and draws it."""
+    work = tmp_path / "copy"
+    shutil.copytree(smoke_study, work, symlinks=True)
+    folder = work / "results/runs/learned/epm/epm/pid/eta0/seed0"
+    series = folder / "timeseries.parquet"
+    series.write_bytes(series.read_bytes()[:3000])
+    common = ["--cores", "1", "-d", str(work), "--configfile", "config/smoke.yaml"]
+    aggregated = _snakemake(*common, "-f", "results/study/runs.parquet", timeout=600)
+    log = (work / "results/logs/study/aggregate.log").read_text()
+    assert aggregated.returncode != 0 and str(series) in log and f"rm -r {folder}" in log, log
+    drawn = _snakemake(*common, "-f", "results/notebooks/learned.html", timeout=600)
+    log = (work / "results/logs/notebooks/learned.log").read_text()
+    assert drawn.returncode != 0 and str(folder) in log and "truncated, damaged" in log, log
+    assert not list((work / "results/notebooks").glob("*.part.ipynb"))
+    assert (work / "results/logs/notebooks/learned.log.failed.ipynb").is_file()
+    shutil.rmtree(folder)
+    again = _snakemake(*common, "results/notebooks/learned.html", timeout=900)
+    assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
+    assert (folder / "metrics.json").is_file() and (
+        work / "results/notebooks/learned.html"
+    ).is_file()

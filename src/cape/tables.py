@@ -6,6 +6,7 @@ a per-column format so that a table reads like the paper's.
 
 from __future__ import annotations
 
+import html
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -41,6 +42,22 @@ def to_markdown(frame: pd.DataFrame, formats: Mapping[str, str | Formatter] | No
     rule = "|" + "|".join("---" for _ in frame.columns) + "|"
     body = ["| " + " | ".join(cells) + " |" for cells in _formatted(frame, formats)]
     return "\n".join([header, rule, *body]) + "\n"
+
+
+def to_html(frame: pd.DataFrame, formats: Mapping[str, str | Formatter] | None = None) -> str:
+    """An HTML table of the cells the Markdown copy prints, for a notebook to show a table as it
+    was saved (pandas would print NaN, six decimals and its row index). Number columns are
+    right-aligned, text columns left-aligned: a long claim reads from its start."""
+    numbers = set(frame.select_dtypes("number").columns)
+    align = [f' style="text-align: {"right" if c in numbers else "left"}"' for c in frame.columns]
+
+    def row(tag: str, cells: Sequence[str]) -> str:
+        pairs = zip(cells, align, strict=True)
+        return "<tr>" + "".join(f"<{tag}{a}>{html.escape(v)}</{tag}>" for v, a in pairs) + "</tr>"
+
+    head = row("th", [str(c) for c in frame.columns])
+    body = "".join(row("td", cells) for cells in _formatted(frame, formats))
+    return f'<table class="dataframe"><thead>{head}</thead><tbody>{body}</tbody></table>'
 
 
 def to_latex(

@@ -4,6 +4,8 @@ import json
 import os
 import sys
 
+from snakemake.io import report as in_report  # `report(` opening a line is Snakemake's directive
+
 from cape.config import validate_config
 from cape.controllers import controller_class
 from cape.closedloop.disturbances import validate_sources
@@ -211,6 +213,22 @@ def figures(notebook, folder, ext):
     return [f"{folder}/{name}{ext}" for name in declared.figures]
 
 
+def reported_figures(notebook, folder, caption, category):
+    """The PNG copies of a notebook's figures for the report, each labelled with its number and
+    its title (cape.study.outputs): a category then lists its figures in order, by what they
+    show, rather than by file name under one shared caption."""
+    declared = {**STUDY_NOTEBOOKS, **WHOLE_STUDY_NOTEBOOKS}[notebook]
+    return [
+        in_report(
+            f"{folder}/{name}.png",
+            caption=caption,
+            category=category,
+            labels={"figure": name[:5], "title": title},
+        )
+        for name, title in declared.figures.items()
+    ]
+
+
 def tables(notebook, folder):
     """The tables a notebook declares, as .csv, .md and .tex files in ``folder``."""
     declared = {**STUDY_NOTEBOOKS, **WHOLE_STUDY_NOTEBOOKS}[notebook]
@@ -220,14 +238,19 @@ def tables(notebook, folder):
 def run_notebook(arguments):
     """The shell command of a notebook rule: papermill runs it under a `.part.ipynb` name (it
     writes as it runs), nbconvert makes the HTML copy, and the notebook is renamed last, so an
-    interrupted notebook never looks finished."""
+    interrupted notebook never looks finished. A notebook that fails leaves nothing beside the
+    results: its executed copy, which shows the failing cell, goes beside its log."""
     return (
-        "papermill {input.notebook} {output.notebook}.part.ipynb --cwd . --no-progress-bar "
+        "(papermill {input.notebook} {output.notebook}.part.ipynb --cwd . --no-progress-bar "
         + arguments
         + " > {log} 2>&1"
         " && jupyter nbconvert --to html {output.notebook}.part.ipynb --output-dir results/notebooks"
-        " --output $(basename {output.html} .html) >> {log} 2>&1"
-        " && mv {output.notebook}.part.ipynb {output.notebook}"
+        " --output $(basename {output.html} .html)"
+        " --HTMLExporter.preprocessors=cape.study.notebook_html.ShortParameters >> {log} 2>&1"
+        " && mv {output.notebook}.part.ipynb {output.notebook})"
+        " || (mv -f {output.notebook}.part.ipynb {log}.failed.ipynb 2> /dev/null || true;"
+        " echo 'the notebook failed; its executed copy, with the failing cell: {log}.failed.ipynb'"
+        " >> {log}; exit 1)"
     )
 
 

@@ -31,7 +31,7 @@ rule notebook_setup:
     input:
         notebook=f"{NOTEBOOKS}/setup.ipynb",
     output:
-        report(figures("setup", "results/figures", ".png"), caption="../report/fig01.rst", category="Set-up"),
+        *reported_figures("setup", "results/figures", "../report/fig01.rst", "Set-up"),
         figures("setup", "results/figures", ".pdf"),
         tables("setup", "results/tables"),
         notebook="results/notebooks/setup.ipynb",
@@ -57,11 +57,7 @@ rule notebook_closed_loop:
         raceline=raceline_path(),
         series=lambda wildcards: example_series(wildcards.study),
     output:
-        report(
-            figures("closed_loop", "results/figures/{study}", ".png"),
-            caption="../report/closed_loop.rst",
-            category="{study} study",
-        ),
+        *reported_figures("closed_loop", "results/figures/{study}", "../report/closed_loop.rst", "{study} study"),
         figures("closed_loop", "results/figures/{study}", ".pdf"),
         tables("closed_loop", "results/tables/{study}"),
         notebook="results/notebooks/{study}.ipynb",
@@ -90,11 +86,7 @@ rule notebook_bicycle:
         notebook=f"{NOTEBOOKS}/bicycle.ipynb",
         summary="results/study/summary.parquet",
     output:
-        report(
-            figures("bicycle", "results/figures/{study}", ".png"),
-            caption="../report/bicycle.rst",
-            category="{study} study",
-        ),
+        *reported_figures("bicycle", "results/figures/{study}", "../report/bicycle.rst", "{study} study"),
         figures("bicycle", "results/figures/{study}", ".pdf"),
         tables("bicycle", "results/tables/{study}"),
         notebook="results/notebooks/{study}.ipynb",
@@ -123,11 +115,7 @@ rule notebook_ablation:
         raceline=raceline_path(),
         series=lambda wildcards: example_series(wildcards.study),
     output:
-        report(
-            figures("ablation", "results/figures/{study}", ".png"),
-            caption="../report/fig04.rst",
-            category="{study} study",
-        ),
+        *reported_figures("ablation", "results/figures/{study}", "../report/fig04.rst", "{study} study"),
         figures("ablation", "results/figures/{study}", ".pdf"),
         notebook="results/notebooks/{study}.ipynb",
         html="results/notebooks/{study}.html",
@@ -154,11 +142,7 @@ rule notebook_failures:
         runs="results/study/runs.parquet",
         raceline=raceline_path(),
     output:
-        report(
-            figures("failures", "results/figures/{study}", ".png"),
-            caption="../report/failures.rst",
-            category="{study} study",
-        ),
+        *reported_figures("failures", "results/figures/{study}", "../report/failures.rst", "{study} study"),
         figures("failures", "results/figures/{study}", ".pdf"),
         notebook="results/notebooks/failures_{study}.ipynb",
         html="results/notebooks/failures_{study}.html",

@@ -1,4 +1,10 @@
-"""Shared figure conventions: a headless backend and saving PDF + PNG atomically."""
+"""Shared figure conventions: a headless backend and saving PDF + PNG atomically.
+
+The backend is Agg everywhere, in the notebooks too: a figure is drawn the same way whether a
+rule's command, a test or a notebook makes it, so the saved files never depend on where they
+were drawn. Agg leaves IPython without its inline image formatter, so the notebooks do not
+``display(fig)``: their ``save`` (cape.study.notebook) shows the PNG it has just written.
+"""
 
 from __future__ import annotations
 
@@ -13,8 +19,11 @@ import matplotlib.pyplot as plt
 
 from cape.io import write_files
 
+PNG_DPI = 200
+"""Resolution of every saved figure's raster copy (the PDF is vector)."""
 
-def save_figure(fig: plt.Figure, *paths: str | Path, dpi: int = 200) -> None:
+
+def save_figure(fig: plt.Figure, *paths: str | Path, dpi: int = PNG_DPI) -> None:
     """Save ``fig`` to each path (format from the suffix), all files or none
     (``cape.io.write_files``)."""
     rendered = {}

@@ -1,8 +1,13 @@
 """What the figure notebooks share: loading the config, the runs and the summary, labels,
-the folder of one run, and writing tables and figures where the workflow expects them."""
+the folder of one run, and writing tables and figures where the workflow expects them.
+
+Each figure and table a notebook saves is also shown in it, as saved: the executed notebooks
+and their HTML copies are where a user sees the results and how they were made.
+"""
 
 from __future__ import annotations
 
+import base64
 import math
 import os
 from collections.abc import Mapping
@@ -13,11 +18,16 @@ import pandas as pd
 
 from cape.config import config_from_args
 from cape.errors import CapeError
-from cape.plots.style import save_figure
+from cape.plots.style import PNG_DPI, save_figure
 from cape.study.grid import RunId
 from cape.study.outputs import declared
 from cape.study.record import read_series
-from cape.tables import write_table
+from cape.tables import Formatter, to_html, to_markdown, write_table
+
+SCREEN_DPI = 100
+"""CSS pixels per figure inch at which a notebook shows a figure: matplotlib's own screen
+resolution (the size ``<Figure size 1260x890>`` names), where 10-point labels are about as
+large as the page's text. A page narrower than that scales the image down to fit."""
 
 
 def enter_repository() -> None:
@@ -74,16 +84,63 @@ def _declared(stem: str) -> None:
         )
 
 
+def _show(data: dict[str, str], metadata: dict[str, Any] | None = None) -> None:
+    """Publish ``data`` (MIME type → content) as an output of the running notebook cell.
+
+    Only in an IPython session: the same ``save`` from a script or a test just writes files
+    (and cape does not need IPython installed for that)."""
+    try:
+        from IPython import get_ipython
+        from IPython.display import display
+    except ImportError:
+        return
+    if get_ipython() is not None:
+        display(data, raw=True, metadata=metadata or {})
+
+
+def _formats(frame: pd.DataFrame) -> dict[str, Formatter]:
+    """Per column, how the saved Markdown and LaTeX copies print it: numbers by ``_number``."""
+    return dict.fromkeys(frame.select_dtypes("number").columns, _number)
+
+
+def show_table(frame: pd.DataFrame) -> None:
+    """Show ``frame`` in the notebook as its .md and .tex copies print it (four significant
+    digits, a dash for a missing value, no row index), not as pandas would (NaN, six decimals)."""
+    formats = _formats(frame)
+    _show({"text/html": to_html(frame, formats), "text/plain": to_markdown(frame, formats)})
+
+
 def save_table(frame: pd.DataFrame, stem: str, latex: bool = True) -> None:
-    """``stem``.csv (full precision) and .md (and .tex, four significant digits), atomically."""
+    """``stem``.csv (full precision) and .md (and .tex, four significant digits), atomically;
+    the table is then shown in the notebook as the .md prints it."""
     _declared(stem)
     paths = [f"{stem}.csv", f"{stem}.md"] + ([f"{stem}.tex"] if latex else [])
-    floats = frame.select_dtypes("number").columns
-    write_table(frame, paths, formats=dict.fromkeys(floats, _number))
+    write_table(frame, paths, formats=_formats(frame))
+    show_table(frame)
+
+
+def _png_width(png: bytes) -> int:
+    """A PNG's width in pixels, from its header (the IHDR chunk follows the 8-byte signature)."""
+    if png[:8] != b"\x89PNG\r\n\x1a\n":
+        raise ValueError("not a PNG file")
+    return int.from_bytes(png[16:20], "big")
+
+
+def show_png(path: str | Path, dpi: int = PNG_DPI) -> None:
+    """Show the PNG file at ``path``, saved at ``dpi``, in the notebook: the very bytes of the
+    file (the figure the notebook saved, not a second rendering of it), at ``SCREEN_DPI``."""
+    png = Path(path).read_bytes()
+    width = round(_png_width(png) * SCREEN_DPI / dpi)
+    _show(
+        {"image/png": base64.b64encode(png).decode("ascii"), "text/plain": f"<figure {path}>"},
+        {"image/png": {"width": width}},
+    )
 
 
 def save(fig: Any, stem: str) -> None:
-    """``stem``.pdf and .png."""
+    """``stem``.pdf and .png, then the PNG shown in the notebook: a notebook cannot save a
+    figure without showing it (Agg, the backend of every figure, has no inline display)."""
     _declared(stem)
     Path(stem).parent.mkdir(parents=True, exist_ok=True)
-    save_figure(fig, f"{stem}.pdf", f"{stem}.png")
+    save_figure(fig, f"{stem}.pdf", f"{stem}.png", dpi=PNG_DPI)
+    show_png(f"{stem}.png", dpi=PNG_DPI)

@@ -2,8 +2,8 @@
 kind of study (SPEC §9).
 
 The workflow's rules read these lists for their outputs; the notebooks' ``save`` and
-``save_table`` refuse a name that is not declared here. So a new figure is one entry below plus
-the notebook cell that draws it.
+``save_table`` refuse a name that is not declared here. So a new figure is one entry below (its
+name and title) plus the notebook cell that draws it, under that title.
 
 A study's kind (``study.studies.<name>.kind`` in the config) says which notebook draws it:
 ``closed_loop`` (the default: the learned and ground-truth studies, or one a user adds),
@@ -14,45 +14,62 @@ and the scorecard.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 
 KINDS = ("closed_loop", "bicycle", "ablation")
 
 
 @dataclass(frozen=True)
 class NotebookOutputs:
-    """What one notebook writes: figure stems (``.pdf`` and ``.png``) and table stems (``.csv``,
-    ``.md`` and ``.tex``), under the folders the rule gives it."""
+    """What one notebook writes: figure stems (``.pdf`` and ``.png``), each with its title, and
+    table stems (``.csv``, ``.md`` and ``.tex``), under the folders the rule gives it.
 
-    figures: tuple[str, ...] = ()
+    A figure's title is the notebook's heading above it (``## Figure <n>: <title>``, n from
+    the stem's ``figNN``) and its label in the Snakemake report, so both say the same."""
+
+    figures: Mapping[str, str] = field(default_factory=dict)
     tables: tuple[str, ...] = ()
 
 
 STUDY_NOTEBOOKS: dict[str, NotebookOutputs] = {
     "closed_loop": NotebookOutputs(
-        figures=(
-            "fig02_signals_eta0",
-            "fig03_tracking_error_sweep",
-            "fig07_ex_time_eta0",
-            "fig08_ey_time_eta0",
-            "fig09_trajectories_eta0",
-            "fig10_penalised_errors_sweep",
-            "fig11_penalised_lap_time",
-        ),
+        figures={
+            "fig02_signals_eta0": "vx, vy, ω, T, δ at η = 0 (first seed)",
+            "fig03_tracking_error_sweep": "tracking error over the η sweep",
+            "fig07_ex_time_eta0": "e_x over time at η = 0 (first seed)",
+            "fig08_ey_time_eta0": "e_y over time at η = 0 (first seed)",
+            "fig09_trajectories_eta0": "trajectories on ETHZMobil at η = 0 (first seed)",
+            "fig10_penalised_errors_sweep": "failure-penalised tracking errors over the η sweep",
+            "fig11_penalised_lap_time": (
+                "failure-penalised lap time, every model × controller (mean over η)"
+            ),
+        },
         tables=("table06_metrics_eta1", "table07_success"),
     ),
     "bicycle": NotebookOutputs(
-        figures=("fig05_bicycle_errors", "fig06_bicycle_lap_time"),
+        figures={
+            "fig05_bicycle_errors": (
+                "failure-penalised tracking errors, bicycle variants vs learned EPM"
+            ),
+            "fig06_bicycle_lap_time": "failure-penalised lap time, bicycle variants vs learned EPM",
+        },
         tables=("table05_best_bicycle_controller",),
     ),
-    "ablation": NotebookOutputs(figures=("fig04_ablation_trajectories",)),
-    "failures": NotebookOutputs(figures=("fig12_failure_locations",)),
+    "ablation": NotebookOutputs(
+        figures={
+            "fig04_ablation_trajectories": (
+                "trajectories at η = 0 (first seed), internal model vs plant"
+            )
+        }
+    ),
+    "failures": NotebookOutputs(figures={"fig12_failure_locations": "failure locations"}),
 }
 """Per-study notebooks: the one of the study's kind, and ``failures`` for every study."""
 
 WHOLE_STUDY_NOTEBOOKS: dict[str, NotebookOutputs] = {
     "setup": NotebookOutputs(
-        figures=("fig01_block_diagram",),
+        figures={"fig01_block_diagram": "the closed loop of every run"},
         tables=("table02_controller_parameters", "table03_uncertainty_activation"),
     ),
     "scorecard": NotebookOutputs(tables=("table08_scorecard",)),
@@ -64,6 +81,11 @@ def declared(name: str) -> bool:
     """True if ``name`` is a figure or table some notebook declares."""
     every = [*STUDY_NOTEBOOKS.values(), *WHOLE_STUDY_NOTEBOOKS.values()]
     return any(name in n.figures or name in n.tables for n in every)
+
+
+def figure_heading(name: str, title: str) -> str:
+    """The heading a notebook puts above figure ``name`` ("Figure 2: …" for ``fig02_…``)."""
+    return f"Figure {int(name[3:5])}: {title}"
 
 
 def notebooks_of(kind: str) -> tuple[str, ...]:
