@@ -651,3 +651,14 @@ def test_train_refuses_a_folder_with_a_model_it_did_not_write(setup: dict, tmp_p
                   str(mine), "--config", str(setup["config"]))  # fmt: skip
     one_message(result, str(mine), "model.pt", "not a model CAPE trained")
     assert (mine / "model.pt").read_bytes() == b"my own network"
+
+
+@pytest.mark.parametrize("option", [["--epochs", "0"], ["--threads", "0"], ["--seed", "-1"]])
+def test_train_refuses_counts_that_make_no_model(option: list[str], tmp_path: Path, capsys) -> None:
+    """`--epochs 0` once saved an untrained model with an infinite validation loss."""
+    from cape.cli import main
+
+    code = main(["train", "--model", "dpm", "--data", "unused.npz", "--out", str(tmp_path / "m"),
+                 *option])  # fmt: skip
+    assert code == 2 and f"{' '.join(option)}: give a number" in capsys.readouterr().err
+    assert not (tmp_path / "m").exists()

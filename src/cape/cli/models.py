@@ -79,6 +79,15 @@ def cmd_train(args: argparse.Namespace) -> None:
         training_fingerprint,
     )
 
+    counts = {
+        "--epochs": (args.epochs, 1),
+        "--threads": (args.threads, 1),
+        "--seed": (args.seed, 0),
+        "--checkpoint-every": (args.checkpoint_every, 0),
+    }
+    for option, (value, least) in counts.items():
+        if value is not None and value < least:
+            raise CapeError(f"{option} {value}: give a number of at least {least}")
     config = _config(args)
     spec = _model_spec(config, args.model)
     _check_model_folder(Path(args.out))  # before the training, not after it
