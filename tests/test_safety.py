@@ -461,9 +461,16 @@ def test_a_time_limit_shorter_than_a_lap_is_refused(setup: dict, tmp_path: Path)
 )
 def test_an_interrupted_rollout_says_so_in_one_line(setup: dict, tmp_path: Path, sig, code, word):
     out = tmp_path / "run"
-    args = rollout_args(setup, out, controller="nmpc", internal="truth", eta="2")
+    # a crawl round the track (0.2 m/s: a lap of about a minute), so that the signal lands
+    # mid-lap however fast the machine is
+    cfg = copy.deepcopy(setup["cfg"])
+    cfg["reference"].update(scale=0.1, v_min=0.1, v_max=0.2)
+    cfg["rollout"]["time_limit"] = 120.0
+    slow = tmp_path.parent / f"{tmp_path.name}-slow.yaml"
+    slow.write_text(yaml.safe_dump(cfg))
+    args = rollout_args(setup, out, config=slow, controller="nmpc", internal="truth", eta="2")
     process = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(2.0)  # past the imports: in the run's set-up or its lap
+    time.sleep(3.0)  # past the imports: in the run's set-up or its lap
     assert process.poll() is None, "the run ended before it could be interrupted"
     process.send_signal(sig)
     _, err = process.communicate(timeout=60)

@@ -20,11 +20,14 @@ and counts a fallback.
 
 from __future__ import annotations
 
+import json
+import sys
 from typing import Any, ClassVar
 
 import casadi as ca
 import numpy as np
 
+from cape.compiled import source_digest
 from cape.controllers.base import GAINS, Controller, PIDLoop, require
 from cape.controllers.internal import N_STATE
 from cape.controllers.registry import register_controller
@@ -246,6 +249,17 @@ class NominalNMPC(Controller):
             "ubg": np.array(ubg, dtype=float),
         }
 
+    def _terms_key(self) -> str:
+        """What ``stage_terms`` depends on, for the compiled library's key: the settings, the
+        parameter layout, the horizon, and the source of every class this controller is made
+        of (where ``stage_terms`` and what it reads are defined)."""
+        modules = {sys.modules[c.__module__] for c in type(self).__mro__ if c is not object}
+        sources = source_digest(*sorted(modules, key=lambda m: m.__name__))
+        layout = sorted((k, v.start, v.stop) for k, v in self.layout.items())
+        kept = {k: v for k, v in self.settings.items() if k not in ("label", "compile")}
+        settings = json.dumps(kept, sort_keys=True, default=str)
+        return f"{settings}|{layout}|{self.horizon}|{sources}"
+
     def _build(self) -> None:
         """The solver of the settings' ``solver``: ``sqp`` (the condensed SQP, the default),
         ``ipopt`` (the reference) or ``sqpmethod`` (CasADi's SQP, the old default), the last
@@ -266,6 +280,7 @@ class NominalNMPC(Controller):
                 self.limits,
                 self.ts,
                 {**s["sqp"], "compile": compile_settings},
+                terms_key=self._terms_key(),
             )
             self.rescue_with = s["sqp"].get("rescue")
         elif name in ("ipopt", "sqpmethod"):

@@ -92,7 +92,12 @@ class CondensedSQP:
         limits: Any,
         ts: float,
         settings: dict[str, Any],
+        terms_key: str | None = None,
     ) -> None:
+        """``terms_key``: a digest of everything ``terms`` depends on (the controller's settings,
+        the layout, the horizon, the code that defines it), so that finding the cached compiled
+        library does not need the stage terms' expressions, the bulk of building the
+        fingerprint; without it they are built and serialised."""
         self.n = horizon
         self.layout = layout
         self.n_state = n_state
@@ -107,7 +112,7 @@ class CondensedSQP:
         compile_settings = settings.get("compile") or {}
         functions, self.library = None, None
         if compile_settings.get("enabled", False):
-            fingerprint = self._fingerprint(n_param, step, terms, limits, ts)
+            fingerprint = self._fingerprint(n_param, step, terms, limits, ts, terms_key)
             cached = cached_functions(FUNCTIONS, fingerprint, compile_settings)
             if cached is not None:  # no need to build the expressions
                 functions, self.library = cached
@@ -129,18 +134,23 @@ class CondensedSQP:
         self.reset()
 
     # --- the problem's functions -----------------------------------------------------------------
-    def _fingerprint(self, n_param: int, step: Any, terms: Any, limits: Any, ts: float) -> str:
+    def _fingerprint(
+        self, n_param: int, step: Any, terms: Any, limits: Any, ts: float, terms_key: str | None
+    ) -> str:
         """A digest of everything the generated code depends on: the problem's stage functions
-        (serialised: the internal model's step and every stage's terms, with the constants they
-        hold), this module's source (how the functions are built from them), the sizes, limits
-        and sampling time. Cheap to form, unlike the functions themselves."""
+        (serialised: the internal model's step, with the constants it holds, and every stage's
+        terms, or ``terms_key`` naming what they depend on), this module's source (how the
+        functions are built from them), the sizes, limits and sampling time. Cheap to form,
+        unlike the functions themselves."""
         x, u, before = ca.SX.sym("x", self.n_state), ca.SX.sym("u", N_INPUT), ca.SX.sym("b", 2)
         e, p = ca.SX.sym("e"), ca.SX.sym("p", n_param)
         outputs = [step(x, u, p)]
-        for k in range(self.n):
-            outputs += [ca.vertcat(*[ca.vec(t) for t in terms(x, u, before, e, p, k)])]
+        if terms_key is None:
+            for k in range(self.n):
+                outputs += [ca.vertcat(*[ca.vec(t) for t in terms(x, u, before, e, p, k)])]
         stage = ca.Function("stage", [x, u, before, e, p], outputs)
         digest = hashlib.sha256(stage.serialize().encode())
+        digest.update(f"terms: {terms_key}".encode())
         digest.update(Path(__file__).read_bytes())
         digest.update(
             repr(

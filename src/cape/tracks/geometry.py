@@ -272,13 +272,7 @@ class ClosedPath:
     def project_many(self, px: np.ndarray, py: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The nearest points of the whole path to many points at once (no window): their arc
         lengths ``s`` and the points themselves (n × 2), with ``project``'s arithmetic and tie
-        rule, so each row equals ``project(px[i], py[i])`` (which it is, point by point, when
-        the compiled kernel is enabled: a few microseconds a point instead of a dense
-        points × segments table)."""
-        if _kernel is not None and np.all(np.isfinite(px)) and np.all(np.isfinite(py)):
-            rows = [self.project(float(x), float(y)) for x, y in zip(px, py, strict=True)]
-            return (np.array([r.s for r in rows], dtype=float),
-                    np.array([(r.x, r.y) for r in rows], dtype=float).reshape(-1, 2))  # fmt: skip
+        rule, so each row equals ``project(px[i], py[i])``."""
         px, py = np.asarray(px, dtype=float)[:, None], np.asarray(py, dtype=float)[:, None]
         ax, ay, dx, dy = self.x, self.y, self._dx, self._dy
         t = np.clip(((px - ax) * dx + (py - ay) * dy) / self._len2, 0.0, 1.0)
