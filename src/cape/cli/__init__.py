@@ -15,6 +15,7 @@ import sys
 import threading
 from collections.abc import Sequence
 
+from cape import interrupt
 from cape.cli import data, models, runs, study  # noqa: F401  (they register their commands)
 from cape.cli.common import COMMANDS, STARTED
 from cape.errors import CapeError
@@ -45,7 +46,13 @@ class Interrupted(BaseException):
 
 
 def _terminated(signum: int, _frame: object) -> None:
-    raise Interrupted(signum)
+    interrupt.requested.append(Interrupted(signum))
+    raise interrupt.requested[-1]
+
+
+def _interrupted(signum: int, _frame: object) -> None:
+    interrupt.requested.append(KeyboardInterrupt())
+    raise interrupt.requested[-1]
 
 
 def describe_os_error(exc: OSError) -> str:
@@ -68,7 +75,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     Every output is written atomically, so none of these leaves a half-written file."""
     args = build_parser().parse_args(argv)
     main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, _terminated) if main_thread else None
+    previous = {}
+    if main_thread:  # raise, and remember for the loop (cape.interrupt: IPOPT swallows it)
+        previous[signal.SIGTERM] = signal.signal(signal.SIGTERM, _terminated)
+        previous[signal.SIGINT] = signal.signal(signal.SIGINT, _interrupted)
     try:
         args.func(args)
     except CapeError as exc:
@@ -84,6 +94,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"cape {args.command}: terminated; no output was left half-written", file=sys.stderr)
         return 143
     finally:
-        if main_thread:
-            signal.signal(signal.SIGTERM, previous)
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+        interrupt.requested.clear()
     return 0

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from cape import interrupt
 from cape.closedloop.disturbances import DisturbancePipeline
 from cape.closedloop.plants import Plant
 from cape.controllers.base import Controller
@@ -88,6 +89,7 @@ def run_lap(
             failure = "diverged"
             break
         solve_ms.append((time.perf_counter() - start) * 1e3)
+        interrupt.check()  # a Ctrl-C the controller's solver swallowed stops the run here
         fallback_steps.append(bool(info.get("fallback", False)))
         rescued += bool(info.get("rescued", False))
         if "iterations" in info:
