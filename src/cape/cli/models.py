@@ -248,8 +248,9 @@ def cmd_export_network(args: argparse.Namespace) -> None:
         from cape.models.network import load_network
 
         network = load_network(out, compile_settings)
-        network.phi(np.zeros((network.history, 7)))  # builds and caches the compiled GRU
-        print("compiled its GRU into the cache " + str(compile_settings.get("cache")))
+        network.phi(np.zeros((network.history, 7)))  # builds and caches the compiled Φ
+        if network.library is not None:
+            print(f"compiled its Φ (GRU, trunk and guard) into {network.library}")
 
 
 def _openloop_arguments(p: argparse.ArgumentParser) -> None:
