@@ -240,7 +240,7 @@ def cmd_export_network(args: argparse.Namespace) -> None:
     if not sep:
         raise CapeError(f"--model {args.model}: expected NAME=FOLDER, e.g. epm=results/models/epm")
     out = export_network(folder, args.out, expected_name=name)
-    print(f"wrote {out}: the {name} network for the NumPy closed loop")
+    print(f"wrote {out}: the {name} network for the closed loop")
     compile_settings = _config(args).get("rollout", {}).get("compile")
     if compile_settings and compile_settings.get("enabled", False):
         import numpy as np

@@ -53,7 +53,8 @@ def compiled_phi(
     """The whole prediction (window, 7 × H with column t = row t, → Φ) from the cached library,
     compiled when missing, and that library; None without a compiler. ``front`` builds the SX
     function of the scaling and the GRU, called only when the library must be compiled
-    (building it takes seconds); ``parts``: the arrays it is built from, for the cache key."""
+    (building it takes seconds); ``parts``: what it is built from (arrays, the source of the
+    code that builds it), for the cache key with this module's source and the trunk."""
     digest = hashlib.sha256(Path(__file__).read_bytes())
     for array in parts:
         digest.update(repr((array.dtype.str, array.shape)).encode())
@@ -233,7 +234,7 @@ CAPE_CLONES static void cape_dense(const float* w, const float* b, const float* 
   }}
 }}
 
-static float cape_mish(float x) {{
+static inline float cape_mish(float x) {{
   float t, n;
   if (x > 20.0f) return x;
   t = expf(x);
@@ -242,7 +243,7 @@ static float cape_mish(float x) {{
 }}
 
 /* PyTorch's LayerNorm (biased variance), the statistics in float64 */
-static void cape_layer_norm(float* x, const float* w, const float* b, float eps, int n) {{
+static inline void cape_layer_norm(float* x, const float* w, const float* b, float eps, int n) {{
   double mean = 0.0, var = 0.0, d, r;
   int i;
   for (i = 0; i < n; ++i) mean += x[i];
@@ -292,6 +293,7 @@ CASADI_SYMBOL_EXPORT int {phi}_work(casadi_int* sz_arg, casadi_int* sz_res, casa
    scratch, as in CasADi's own code, so the caller's pointers are left as they were */
 CASADI_SYMBOL_EXPORT int {phi}(const casadi_real** arg, casadi_real** res, casadi_int* iw,
                              casadi_real* w, int mem) {{
+  (void) mem;
   arg[1] = arg[0];
   res[1] = w;
   if ({front}(arg + 1, res + 1, iw, w + {n_features}, 0)) return 1;

@@ -145,7 +145,10 @@ class NumpyNetwork:
     def _build(self) -> Callable[[Array], Array]:
         settings = self.compile_settings
         if settings and settings.get("enabled", False):
-            parts = [np.array(self.history), self.mean, self.scale, *(self.gru or ())]
+            # what the generated code depends on besides the trunk: this module's source (the
+            # front's construction), the window length, the scaler, the GRU's weights
+            source = np.frombuffer(Path(__file__).read_bytes(), np.uint8)
+            parts = [source, np.array(self.history), self.mean, self.scale, *(self.gru or ())]
             compiled = compiled_phi(
                 self.front_function, self.layers, self.guard, parts, dict(settings)
             )
