@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import copy
+import json
+import subprocess
+import sys
 
 import casadi as ca
 import numpy as np
@@ -252,6 +255,28 @@ def test_both_paths_of_every_layer_kind_match_the_training_graph(
     # a NaN in the window reaches Φ, as in the training graph (no bound hides it)
     with np.errstate(invalid="ignore"):
         assert np.isnan(network.phi(np.full_like(window, np.nan))).all()
+
+
+def test_predicting_imports_neither_pytorch_nor_scipy(config, tmp_path) -> None:
+    """A rollout process predicts Φ, compiled or not, without PyTorch or SciPy (GELU's erf
+    included: importing ``scipy.special`` cost half a second in every EPM job)."""
+    name, changes = SMALL["epm-gelu-layer-norm"]
+    model = build_model(name, {**copy.deepcopy(config["models"][name]), **changes}, TS, seed=0)
+    save_network(tmp_path / "network.npz", model.network_arrays())
+    settings = _compile_settings(tmp_path)
+    code = "\n".join(
+        [
+            "import json, sys, numpy as np",
+            "from cape.models.network import load_network",
+            f"for settings in (None, json.loads({json.dumps(settings)!r})):",
+            f"    network = load_network({str(tmp_path / 'network.npz')!r}, settings)",
+            "    network.phi(np.ones((network.history, 7)))",
+            "    assert (network.library is None) == (settings is None)",
+            "print(sorted(m for m in ('torch', 'scipy') if m in sys.modules))",
+        ]
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
 
 
 def test_the_compiled_phi_is_built_once_then_loaded_from_the_cache(
