@@ -257,6 +257,27 @@ def test_both_paths_of_every_layer_kind_match_the_training_graph(
         assert np.isnan(network.phi(np.full_like(window, np.nan))).all()
 
 
+def test_compiled_networks_loaded_together_each_compute_their_own_phi(
+    config, datasets, tmp_path
+) -> None:
+    """A run loads two networks (a learned plant, another internal model): each library's Φ
+    calls its own GRU, whatever was loaded before it."""
+    settings = _compile_settings(tmp_path)
+    networks = []
+    for i, variant in enumerate(("ddm-mish", "epm-gelu-layer-norm")):
+        name, changes = SMALL[variant]
+        spec = {**copy.deepcopy(config["models"][name]), **changes}
+        save_network(tmp_path / f"{i}.npz", build_model(name, spec, TS, seed=i).network_arrays())
+        networks.append(
+            (load_network(tmp_path / f"{i}.npz", settings), load_network(tmp_path / f"{i}.npz"))
+        )
+    for compiled, uncompiled in networks + networks[::-1]:
+        window = make_windows(datasets["ETHZMobil"], compiled.history).features[40]
+        phi, ref = compiled.phi(window), uncompiled.phi(window)
+        assert compiled.library is not None
+        assert np.max(np.abs(phi - ref) / np.abs(ref).max()) <= 1e-5
+
+
 def test_predicting_imports_neither_pytorch_nor_scipy(config, tmp_path) -> None:
     """A rollout process predicts Φ, compiled or not, without PyTorch or SciPy (GELU's erf
     included: importing ``scipy.special`` cost half a second in every EPM job)."""
@@ -292,7 +313,7 @@ def test_the_compiled_phi_is_built_once_then_loaded_from_the_cache(
     library = first.library
     assert library is not None and library.with_name(library.name + ".sha256").is_file()
 
-    def unbuilt(self: NumpyNetwork) -> None:
+    def unbuilt(self: NumpyNetwork, name: str = "") -> None:
         raise AssertionError("the cached library was not used")
 
     monkeypatch.setattr(NumpyNetwork, "front_function", unbuilt)  # a cache hit builds nothing

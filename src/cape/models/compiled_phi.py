@@ -38,21 +38,23 @@ if TYPE_CHECKING:
 LANES = 8
 """float32 lanes of one vector: rows of the weights are padded with zeros to a multiple."""
 FRONT = "phi_front"
-"""The name of CasADi's function in the library (window → the trunk's input)."""
+"""The name of CasADi's function (window → the trunk's input); in a library, followed by the
+library's key: ``phi`` calls it by its exported name, which must not resolve to the function of
+another network's library loaded into the same process."""
 PHI = "phi"
 """The name of the whole prediction in the library (window → Φ)."""
 
 
 def compiled_phi(
-    front: Callable[[], ca.Function],
+    front: Callable[[str], ca.Function],
     layers: Sequence[Layer],
     guard: tuple[np.ndarray, np.ndarray] | None,
     parts: Sequence[np.ndarray],
     compile_settings: dict[str, Any],
 ) -> tuple[ca.Function, Path] | None:
     """The whole prediction (window, 7 × H with column t = row t, → Φ) from the cached library,
-    compiled when missing, and that library; None without a compiler. ``front`` builds the SX
-    function of the scaling and the GRU, called only when the library must be compiled
+    compiled when missing, and that library; None without a compiler. ``front(name)`` builds the
+    SX function of the scaling and the GRU, called only when the library must be compiled
     (building it takes seconds); ``parts``: what it is built from (arrays, the source of the
     code that builds it), for the cache key with this module's source and the trunk."""
     digest = hashlib.sha256(Path(__file__).read_bytes())
@@ -68,8 +70,10 @@ def compiled_phi(
     for array in guard or ():
         digest.update(array.tobytes())
 
+    key = digest.hexdigest()
+
     def generate(directory: Path) -> Path:
-        function = front()
+        function = front(f"{FRONT}_{key[:16]}")
         gen = ca.CodeGenerator("phi.c", {"with_header": False})
         gen.add(function)
         source = generated(gen, "phi.c", directory)
@@ -78,7 +82,7 @@ def compiled_phi(
         return source
 
     library = cached_library(
-        digest.hexdigest(),
+        key,
         compile_settings,
         generate,
         prefix="phi",

@@ -125,16 +125,16 @@ class NumpyNetwork:
         self.library: Path | None = None
         """The compiled library Φ runs in; None: uncompiled (known after the first prediction)."""
 
-    def front_function(self) -> ca.Function:
+    def front_function(self, name: str = FRONT) -> ca.Function:
         """The scaling and the GRU stack on one window (7 × H, column t = row t of the window)
-        as a CasADi function: the trunk's input, the GRU's outputs row after row (or, without a
-        GRU, the scaled window's rows)."""
+        as a CasADi function ``name``: the trunk's input, the GRU's outputs row after row (or,
+        without a GRU, the scaled window's rows)."""
         x = ca.SX.sym("window", N_FEATURES, self.history)
         scaled = (x - ca.repmat(ca.DM(self.mean), 1, self.history)) / ca.repmat(
             ca.DM(self.scale), 1, self.history
         )
         out = ca.vec(gru_stack(scaled.T, *self.gru).T) if self.gru is not None else ca.vec(scaled)
-        return ca.Function(FRONT, [x], [out])
+        return ca.Function(name, [x], [out])
 
     def phi(self, window: Array) -> Array:
         """Φ (P,) in float64 for one unscaled window (H, 7)."""
