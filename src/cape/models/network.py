@@ -35,12 +35,11 @@ from cape.errors import CapeError
 from cape.integrity import check_arrays, sealed_arrays
 from cape.io import save_npz
 from cape.models.compiled_phi import FRONT, compiled_phi
+from cape.models.physics import N_FEATURES
 
 Array = np.ndarray
 NETWORK_FORMAT = 1
 """Version of ``network.npz``'s layout; a file of another version is rejected with the fix."""
-N_FEATURES = 7
-"""Columns of a window (``cape.models.physics.N_FEATURES``, which imports more than needed)."""
 
 
 @dataclass(frozen=True)
