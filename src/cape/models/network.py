@@ -9,7 +9,7 @@ here, two ways:
 
 - compiled (``rollout.compile``, the default): the whole prediction, scaled window → GRU stack
   → trunk → guard, as one C function, cached per trained model (``cape.models.compiled_phi``;
-  ``cape export-network`` builds it): one call of about 0.1 ms for EPM;
+  ``cape export-network`` builds it): one call, 0.11–0.16 ms for EPM with its weights in cache;
 - uncompiled (no compiler, or ``enabled: false``, as the smoke configuration runs it): the
   scaling and the GRU as the same CasADi function in CasADi's virtual machine, and the trunk
   as NumPy float32 matrix–vector products, like the training graph. This NumPy trunk is the
