@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import copy
+import json
+import subprocess
+import sys
 
 import casadi as ca
 import numpy as np
@@ -13,7 +16,7 @@ from cape.data.windows import make_windows
 from cape.errors import CapeError
 from cape.models import model_class
 from cape.models.base import LearnedModel
-from cape.models.network import load_network, save_network
+from cape.models.network import NumpyNetwork, load_network, save_network
 from cape.models.physics import ModelPhysics
 from cape.models.trained import TrainedModel
 from cape.models.training import build_model
@@ -169,12 +172,13 @@ def test_guard_keeps_every_output_inside_its_bounds(models, config, name: str) -
     assert (phi == upper).any() or (phi == lower).any()  # really saturated
 
 
-@pytest.mark.parametrize("name", ["dpm", "ddm", "epm"])
-def test_exported_numpy_network_matches_the_training_graph(
-    models, datasets, name: str, tmp_path
-) -> None:
-    """The closed loop's path: weights exported to network.npz, read back without PyTorch."""
-    model = copy.deepcopy(models[name])
+def _held_to_the_training_graph(
+    model: LearnedModel, datasets, tmp_path, compile_settings: dict | None
+) -> NumpyNetwork:
+    """The closed loop's path (weights exported to network.npz, read back without PyTorch,
+    compiled with ``compile_settings``) against the training graph on ETHZMobil windows, at
+    the tolerances the closed loop relies on."""
+    model = copy.deepcopy(model)
     w = make_windows(datasets["ETHZMobil"], model.history)
     flat = w.features.reshape(-1, 7)
     model.set_scaler(flat.mean(axis=0), flat.std(axis=0))
@@ -183,10 +187,136 @@ def test_exported_numpy_network_matches_the_training_graph(
         ref = model(torch.as_tensor(features)).numpy()
         ref_phi = model.phi(torch.as_tensor(features)).numpy()
     save_network(tmp_path / "network.npz", model.network_arrays())
-    fast = TrainedModel(model.physics, load_network(tmp_path / "network.npz"))
+    network = load_network(tmp_path / "network.npz", compile_settings)
+    fast = TrainedModel(model.physics, network)
     pred = np.array([fast.predict(x) for x in features])
     phi = np.array([fast.phi(x) for x in features])
     # the next state, what the closed loop consumes: ≤ 1e-6 relative
     assert np.max(np.abs(pred - ref) / np.abs(ref).max(axis=0)) <= 1e-6
     # Φ: within the float32 rounding of the training graph itself (relative to each range)
     assert np.max(np.abs(phi - ref_phi) / np.maximum(np.abs(ref_phi).max(axis=0), 1e-12)) <= 1e-4
+    return network
+
+
+def _compile_settings(tmp_path) -> dict:
+    return {"enabled": True, "cache": str(tmp_path / "cache"), "compiler": "gcc", "flags": ["-O1"]}
+
+
+@pytest.mark.parametrize("name", ["dpm", "ddm", "epm"])
+def test_exported_numpy_network_matches_the_training_graph(
+    models, datasets, name: str, tmp_path
+) -> None:
+    """Uncompiled (CasADi's virtual machine and the NumPy trunk), the real architectures."""
+    network = _held_to_the_training_graph(models[name], datasets, tmp_path, None)
+    assert network.library is None
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["dpm", "ddm", "epm"])
+def test_compiled_phi_of_the_real_architectures_matches_the_training_graph(
+    models, datasets, name: str, tmp_path
+) -> None:
+    """The default path of the study's models: Φ as one compiled C function (DPM's GRU takes
+    most of a minute to compile)."""
+    settings = _compile_settings(tmp_path)
+    network = _held_to_the_training_graph(models[name], datasets, tmp_path, settings)
+    assert network.library is not None
+
+
+# small networks with every layer kind, a guard and a plain output, a GRU and none, and widths
+# that are no multiple of the compiled product's 8 lanes: quick to compile
+SMALL = {
+    "ddm-mish": ("ddm", {"gru": {"hidden": 3, "layers": 2}, "head": {"width": 13, "layers": 2,
+                 "activation": "mish"}}),
+    "epm-gelu-layer-norm": ("epm", {"gru": {"hidden": 4, "layers": 2}, "head": {"width": 21,
+                            "layers": 3, "activation": "gelu", "layer_norm_after": [1, 3]}}),
+    "dpm-relu-no-gru": ("dpm", {"gru": {"hidden": 1, "layers": 0}, "head": {"width": 11,
+                        "layers": 2, "activation": "relu"}}),
+    "dpm-tanh": ("dpm", {"gru": {"hidden": 2, "layers": 1}, "head": {"width": 9, "layers": 1,
+                 "activation": "tanh"}}),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("variant", sorted(SMALL))
+@pytest.mark.parametrize("compiled", [True, False], ids=["compiled", "uncompiled"])
+def test_both_paths_of_every_layer_kind_match_the_training_graph(
+    config, datasets, variant: str, compiled: bool, tmp_path
+) -> None:
+    name, changes = SMALL[variant]
+    spec = {**copy.deepcopy(config["models"][name]), **changes}
+    model = build_model(name, spec, TS, seed=1)
+    settings = _compile_settings(tmp_path) if compiled else None
+    network = _held_to_the_training_graph(model, datasets, tmp_path, settings)
+    assert (network.library is not None) == compiled
+    window = make_windows(datasets["ETHZMobil"], model.history).features[40]
+    first, again = network.phi(window), network.phi(window + 0.1)
+    assert not np.array_equal(first, again)  # each result is its own array, not overwritten
+    np.testing.assert_array_equal(first, network.phi(window))
+    # a NaN in the window reaches Φ, as in the training graph (no bound hides it)
+    with np.errstate(invalid="ignore"):
+        assert np.isnan(network.phi(np.full_like(window, np.nan))).all()
+
+
+def test_compiled_networks_loaded_together_each_compute_their_own_phi(
+    config, datasets, tmp_path
+) -> None:
+    """A run loads two networks (a learned plant, another internal model): each library's Φ
+    calls its own GRU, whatever was loaded before it."""
+    settings = _compile_settings(tmp_path)
+    networks = []
+    for i, variant in enumerate(("ddm-mish", "epm-gelu-layer-norm")):
+        name, changes = SMALL[variant]
+        spec = {**copy.deepcopy(config["models"][name]), **changes}
+        save_network(tmp_path / f"{i}.npz", build_model(name, spec, TS, seed=i).network_arrays())
+        networks.append(
+            (load_network(tmp_path / f"{i}.npz", settings), load_network(tmp_path / f"{i}.npz"))
+        )
+    for compiled, uncompiled in networks + networks[::-1]:
+        window = make_windows(datasets["ETHZMobil"], compiled.history).features[40]
+        phi, ref = compiled.phi(window), uncompiled.phi(window)
+        assert compiled.library is not None
+        assert np.max(np.abs(phi - ref) / np.abs(ref).max()) <= 1e-5
+
+
+def test_predicting_imports_neither_pytorch_nor_scipy(config, tmp_path) -> None:
+    """A rollout process predicts Φ, compiled or not, without PyTorch or SciPy (GELU's erf
+    included: importing ``scipy.special`` cost half a second in every EPM job)."""
+    name, changes = SMALL["epm-gelu-layer-norm"]
+    model = build_model(name, {**copy.deepcopy(config["models"][name]), **changes}, TS, seed=0)
+    save_network(tmp_path / "network.npz", model.network_arrays())
+    settings = _compile_settings(tmp_path)
+    code = "\n".join(
+        [
+            "import json, sys, numpy as np",
+            "from cape.models.network import load_network",
+            f"for settings in (None, json.loads({json.dumps(settings)!r})):",
+            f"    network = load_network({str(tmp_path / 'network.npz')!r}, settings)",
+            "    network.phi(np.ones((network.history, 7)))",
+            "    assert (network.library is None) == (settings is None)",
+            "print(sorted(m for m in ('torch', 'scipy') if m in sys.modules))",
+        ]
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_the_compiled_phi_is_built_once_then_loaded_from_the_cache(
+    config, datasets, tmp_path, monkeypatch
+) -> None:
+    name, changes = SMALL["epm-gelu-layer-norm"]
+    model = build_model(name, {**copy.deepcopy(config["models"][name]), **changes}, TS, seed=0)
+    save_network(tmp_path / "network.npz", model.network_arrays())
+    settings = _compile_settings(tmp_path)
+    window = make_windows(datasets["ETHZMobil"], model.history).features[40]
+    first = load_network(tmp_path / "network.npz", settings)
+    phi = first.phi(window)
+    library = first.library
+    assert library is not None and library.with_name(library.name + ".sha256").is_file()
+
+    def unbuilt(self: NumpyNetwork, name: str = "") -> None:
+        raise AssertionError("the cached library was not used")
+
+    monkeypatch.setattr(NumpyNetwork, "front_function", unbuilt)  # a cache hit builds nothing
+    cached = load_network(tmp_path / "network.npz", settings)
+    np.testing.assert_array_equal(cached.phi(window), phi)
+    assert cached.library == library

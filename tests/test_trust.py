@@ -137,6 +137,23 @@ def test_a_damaged_compiled_library_is_refused_not_loaded(tmp_path: Path) -> Non
         cached_functions({"double": "trust_double"}, "fingerprint-1", settings)
 
 
+def test_a_damaged_compiled_phi_is_refused_not_loaded(config, tmp_path: Path) -> None:
+    from cape.models.network import load_network, save_network
+    from cape.models.training import build_model
+
+    spec = {**config["models"]["ddm"], "gru": {"hidden": 2, "layers": 1}}
+    spec["head"] = {"width": 8, "layers": 1, "activation": "mish"}
+    save_network(tmp_path / "network.npz", build_model("ddm", spec, TS, seed=0).network_arrays())
+    settings = {"enabled": True, "cache": str(tmp_path), "compiler": "gcc", "flags": ["-O0"]}
+    network = load_network(tmp_path / "network.npz", settings)
+    window = np.zeros((network.history, 7))
+    network.phi(window)
+    assert network.library is not None
+    _flip_byte(network.library, network.library.stat().st_size // 2)
+    with pytest.raises(CapeError, match=r"phi_\w+\.so: its content does not match .* rebuilds it"):
+        load_network(tmp_path / "network.npz", settings).phi(window)
+
+
 # --- names and values -----------------------------------------------------------------------
 @pytest.mark.parametrize("eta", ["nan", "inf", "1e9", "-0.5", "abc"])
 def test_eta_outside_its_range_is_refused(eta: str, capsys) -> None:

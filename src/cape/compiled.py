@@ -106,14 +106,41 @@ def verify_library(library: Path) -> None:
     check_sidecar(library, f"delete {library} (and its .sha256); the next run rebuilds it")
 
 
-def _fingerprinted(fingerprint: str, compile_settings: dict[str, Any]) -> Path | None:
+def _fingerprinted(
+    fingerprint: str, compile_settings: dict[str, Any], prefix: str = "condensed"
+) -> Path | None:
     compiler = str(compile_settings.get("compiler", "gcc"))
     if shutil.which(compiler) is None:
         return None
     flags = [str(f) for f in compile_settings.get("flags", ["-O1"])]
     cache = Path(str(compile_settings.get("cache", "results/solvers")))
     key = hashlib.sha256(" ".join([fingerprint, ca.__version__, compiler, *flags]).encode())
-    return cache / f"condensed_{key.hexdigest()[:16]}.so"
+    return cache / f"{prefix}_{key.hexdigest()[:16]}.so"
+
+
+def cached_library(
+    fingerprint: str,
+    compile_settings: dict[str, Any],
+    generate: Callable[[Path], Path],
+    prefix: str = "condensed",
+    what: str = "the NLP",
+    setting: str = "the controller's `compile.enabled: false`",
+) -> Path | None:
+    """The cached library of the code with ``fingerprint`` (a digest of everything the code
+    depends on), its checksum verified; compiled from the C file ``generate(folder)`` writes
+    when it is not cached yet. None when the compiler is missing (said once: ``what`` runs
+    uncompiled). ``setting`` turns the compilation off."""
+    compiler = str(compile_settings.get("compiler", "gcc"))
+    library = _fingerprinted(fingerprint, compile_settings, prefix)
+    if library is None:
+        _warn_once(f"compiler {compiler!r} not found; {what} runs uncompiled (slower)")
+        return None
+    if library.is_file():  # compiled before, or meanwhile by a concurrent job
+        verify_library(library)
+    else:
+        flags = [str(f) for f in compile_settings.get("flags", ["-O1"])]
+        _compile(generate, library, compiler, flags, what, setting)
+    return library
 
 
 def compiled_functions(
@@ -125,30 +152,29 @@ def compiled_functions(
     """The same functions, loaded from one compiled library cached under ``fingerprint``
     (compiled now when missing), and that library; unchanged, with None, when the compiler is
     missing."""
-    compiler = str(compile_settings.get("compiler", "gcc"))
-    library = _fingerprinted(fingerprint, compile_settings)
-    if library is None:
-        _warn_once(f"compiler {compiler!r} not found; the solver's functions run uncompiled")
-        return functions, None
-    flags = [str(f) for f in compile_settings.get("flags", ["-O1"])]
 
     def generate(directory: Path) -> Path:
         gen = ca.CodeGenerator(f"{name}.c", {"with_header": False})
         for function in functions.values():
             gen.add(function)
-        here = Path.cwd()
-        os.chdir(directory)
-        try:
-            gen.generate()
-        finally:
-            os.chdir(here)
-        return directory / f"{name}.c"
+        return generated(gen, f"{name}.c", directory)
 
-    if library.is_file():  # compiled meanwhile by a concurrent job
-        verify_library(library)
-    else:
-        _compile(generate, library, compiler, flags)
+    library = cached_library(fingerprint, compile_settings, generate)
+    if library is None:
+        return functions, None
     return {key: ca.external(f.name(), str(library)) for key, f in functions.items()}, library
+
+
+def generated(gen: ca.CodeGenerator, file_name: str, directory: Path) -> Path:
+    """Write ``gen``'s C file ``file_name`` into ``directory`` and return its path (CasADi
+    writes generated code to the working directory)."""
+    here = Path.cwd()
+    os.chdir(directory)
+    try:
+        gen.generate()
+    finally:
+        os.chdir(here)
+    return directory / file_name
 
 
 def compiled_library(
@@ -173,9 +199,17 @@ def _compiled(generate: Any, prefix: str, cache: Path, compiler: str, flags: lis
     return library
 
 
-def _compile(generate: Any, library: Path, compiler: str, flags: list[str]) -> None:
+def _compile(
+    generate: Any,
+    library: Path,
+    compiler: str,
+    flags: list[str],
+    what: str = "the NLP",
+    setting: str = "the controller's `compile.enabled: false`",
+) -> None:
     """Generate C source with ``generate(folder)`` and compile it into ``library`` (temp file,
-    then rename: concurrent jobs never see half a library)."""
+    then rename: concurrent jobs never see half a library). ``what`` and ``setting`` name the
+    code and the setting that turns it off, for the error."""
     with tempfile.TemporaryDirectory() as tmp:
         source = generate(Path(tmp))
         library.parent.mkdir(parents=True, exist_ok=True)
@@ -184,8 +218,8 @@ def _compile(generate: Any, library: Path, compiler: str, flags: list[str]) -> N
         done = subprocess.run(cmd, capture_output=True, text=True, check=False)
         if done.returncode != 0:
             raise CapeError(
-                f"compiling the NLP with `{' '.join(cmd)}` failed:\n{done.stderr.strip()}\n"
-                "Set the controller's `compile.enabled: false` to run without a compiler."
+                f"compiling {what} with `{' '.join(cmd)}` failed:\n{done.stderr.strip()}\n"
+                f"Set {setting} to run without a compiler."
             )
         # copy beside the target, then rename: atomic on the cache's file system; the checksum
         # first, so that a library without one is never mistaken for a complete one

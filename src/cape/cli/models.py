@@ -249,7 +249,7 @@ def cmd_export_network(args: argparse.Namespace) -> None:
     if not sep:
         raise CapeError(f"--model {args.model}: expected NAME=FOLDER, e.g. epm=results/models/epm")
     out = export_network(folder, args.out, expected_name=name)
-    print(f"wrote {out}: the {name} network for the NumPy closed loop")
+    print(f"wrote {out}: the {name} network for the closed loop")
     compile_settings = _config(args).get("rollout", {}).get("compile")
     if compile_settings and compile_settings.get("enabled", False):
         import numpy as np
@@ -257,8 +257,9 @@ def cmd_export_network(args: argparse.Namespace) -> None:
         from cape.models.network import load_network
 
         network = load_network(out, compile_settings)
-        network.phi(np.zeros((network.history, 7)))  # builds and caches the compiled GRU
-        print("compiled its GRU into the cache " + str(compile_settings.get("cache")))
+        network.phi(np.zeros((network.history, 7)))  # builds and caches the compiled Φ
+        if network.library is not None:
+            print(f"compiled its Φ (GRU, trunk and guard) into {network.library}")
 
 
 def _openloop_arguments(p: argparse.ArgumentParser) -> None:

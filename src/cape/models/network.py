@@ -1,22 +1,29 @@
-"""The learned models' network on NumPy: what the closed loop runs, without PyTorch.
+"""The learned models' network without PyTorch: what the closed loop runs.
 
 The closed loop asks for Φ of one window thousands of times per run, and a rollout job is a
 process of its own, so two costs matter: the per-window time and the start-up. At batch size
 one PyTorch's per-operation overhead dominates (its GRU runs 49–80 tiny cells of about 20
 operations each: milliseconds per window), and importing it costs seconds per job. So the
 trained weights are exported once to ``network.npz`` (``LearnedModel.network_arrays``) and run
-here: the GRU stack, all cells of all layers, as one CasADi function (compiled C, cached after
-the first compilation) in float64, and the fully connected trunk as a handful of NumPy
-matrix–vector products in float32, like the training graph (the trunk's weights, up to 11 MB,
-are read once per call, so their width sets its speed). A test holds the result to the
-training graph (≤ 1e-6 relative).
+here, two ways:
+
+- compiled (``rollout.compile``, the default): the whole prediction, scaled window → GRU stack
+  → trunk → guard, as one C function, cached per trained model (``cape.models.compiled_phi``;
+  ``cape export-network`` builds it): one call, 0.11–0.16 ms for EPM with its weights in cache;
+- uncompiled (no compiler, or ``enabled: false``, as the smoke configuration runs it): the
+  scaling and the GRU as the same CasADi function in CasADi's virtual machine, and the trunk
+  as NumPy float32 matrix–vector products, like the training graph. This NumPy trunk is the
+  fallback of the compiled one: the same layers from the same arrays, held by the same test.
+
+Both keep to the training graph within its own float32 rounding (tests: ≤ 1e-6 relative on
+the next state). Neither imports SciPy: GELU's erf is CasADi's.
 """
 
 from __future__ import annotations
 
-import hashlib
 import zipfile
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -24,36 +31,29 @@ import casadi as ca
 import numpy as np
 
 from cape.buffered import BufferedCall
-from cape.compiled import cached_functions, compiled_functions
 from cape.errors import CapeError
 from cape.integrity import check_arrays, sealed_arrays
 from cape.io import save_npz
+from cape.models.compiled_phi import FRONT, compiled_phi
+from cape.models.physics import N_FEATURES
 
 Array = np.ndarray
 NETWORK_FORMAT = 1
 """Version of ``network.npz``'s layout; a file of another version is rejected with the fix."""
 
 
-def _sigmoid(x: Array) -> Array:
-    return 0.5 * (1.0 + np.tanh(0.5 * x))
+@dataclass(frozen=True)
+class Layer:
+    """One layer of the trunk as exported: ``linear`` (weight in × out, bias), ``layer_norm``
+    (weight, bias, eps) or an activation (``mish``, ``gelu``, ``relu``, ``tanh``), float32."""
+
+    kind: str
+    weight: Array | None = None
+    bias: Array | None = None
+    eps: float = 0.0
 
 
-def _mish(x: Array) -> Array:
-    return x * np.tanh(np.logaddexp(0.0, x))
-
-
-def _gelu(x: Array) -> Array:
-    from scipy.special import erf  # only GELU needs it; scipy.special is slow to import
-
-    return 0.5 * x * (1.0 + erf(x * np.float32(1.0 / np.sqrt(2.0))))
-
-
-ACTIVATIONS: dict[str, Callable[[Array], Array]] = {
-    "mish": _mish,
-    "gelu": _gelu,
-    "relu": lambda x: np.maximum(x, 0.0),
-    "tanh": np.tanh,
-}
+KINDS = ("linear", "layer_norm", "mish", "gelu", "relu", "tanh")
 
 
 def gru_stack(x: ca.SX, w_ih0: Array, w_ih: Array, w_hh: Array, b_ih: Array, b_hh: Array) -> ca.SX:
@@ -84,35 +84,10 @@ def gru_stack(x: ca.SX, w_ih0: Array, w_ih: Array, w_hh: Array, b_ih: Array, b_h
     return inp
 
 
-def gru_function(
-    history: int, gru: tuple[Array, ...], compile_settings: Mapping[str, Any] | None = None
-) -> BufferedCall:
-    """The GRU stack on one window (the scaled window, row after row) as a CasADi function,
-    called through its buffer. With ``compile_settings`` it runs as compiled C, cached under a
-    digest of the weights (``cape export-network`` builds it once per trained model): tens of
-    microseconds a window, and no Numba to import and dispatch (a second in every rollout
-    process). Without, in CasADi's virtual machine."""
-    n_in = gru[0].shape[0]
-    fingerprint = hashlib.sha256(repr((history, n_in)).encode())
-    for array in gru:
-        fingerprint.update(np.ascontiguousarray(array).tobytes())
-    if compile_settings and compile_settings.get("enabled", False):
-        cached = cached_functions({"gru": "gru"}, fingerprint.hexdigest(), dict(compile_settings))
-        if cached is not None:
-            return BufferedCall(cached[0]["gru"])
-    x = ca.SX.sym("x", n_in, history)  # column t is row t of the window
-    out = gru_stack(x.T, *gru)
-    function = ca.Function("gru", [x], [ca.vec(out.T)])
-    if compile_settings and compile_settings.get("enabled", False):
-        compiled, _ = compiled_functions(
-            "gru", {"gru": function}, dict(compile_settings), fingerprint.hexdigest()
-        )
-        function = compiled["gru"]
-    return BufferedCall(function)
-
-
 class NumpyNetwork:
-    """Φ of one window from exported arrays (``LearnedModel.network_arrays``)."""
+    """Φ of one window from exported arrays (``LearnedModel.network_arrays``); compiled with
+    ``compile_settings`` (``rollout.compile``) enabled and a compiler at hand, else uncompiled.
+    """
 
     def __init__(
         self, arrays: Mapping[str, Array], compile_settings: Mapping[str, Any] | None = None
@@ -124,55 +99,133 @@ class NumpyNetwork:
         self.gru: tuple[Array, ...] | None = None  # no GRU: the trunk reads the window's rows
         if "gru_w_hh" in arrays:
             self.gru = tuple(f64(f"gru_{k}") for k in ("w_ih0", "w_ih", "w_hh", "b_ih", "b_hh"))
-        self._gru: BufferedCall | None = None
-        self.layers: list[Callable[[Array], Array]] = []
-        linear = [i for i, k in enumerate(arrays["layers"]) if str(k) == "linear"]
-        hidden = self.gru[2].shape[1] if self.gru is not None else self.mean.size
-        self.history = int(arrays[f"layer{linear[0]}_weight"].shape[0]) // hidden
-        """Rows of the window the trunk was built for."""
-        self.n_outputs = int(arrays[f"layer{linear[-1]}_bias"].shape[0])
-        """Components of Φ."""
+        self.layers: list[Layer] = []
         for i, kind in enumerate(str(k) for k in arrays["layers"]):
             if kind == "linear":
-                self.layers.append(_linear(f32(f"layer{i}_weight"), f32(f"layer{i}_bias")))
+                self.layers.append(Layer(kind, f32(f"layer{i}_weight"), f32(f"layer{i}_bias")))
             elif kind == "layer_norm":
                 eps = float(arrays[f"layer{i}_eps"])
-                self.layers.append(_layer_norm(f32(f"layer{i}_weight"), f32(f"layer{i}_bias"), eps))
-            elif kind in ACTIVATIONS:
-                self.layers.append(ACTIVATIONS[kind])
+                self.layers.append(Layer(kind, f32(f"layer{i}_weight"), f32(f"layer{i}_bias"), eps))
+            elif kind in KINDS:
+                self.layers.append(Layer(kind))
             else:
                 raise ValueError(f"layer {i}: unknown kind {kind!r}")
+        linear = [layer for layer in self.layers if layer.kind == "linear"]
+        hidden = self.gru[2].shape[1] if self.gru is not None else self.mean.size
+        assert linear[0].weight is not None and linear[-1].bias is not None
+        self.history = int(linear[0].weight.shape[0]) // hidden
+        """Rows of the window the trunk was built for."""
+        self.n_outputs = int(linear[-1].bias.shape[0])
+        """Components of Φ."""
         self.guard: tuple[Array, Array] | None = None
         if "guard_lower" in arrays:
             self.guard = (f64("guard_lower"), f64("guard_upper"))
+        self._phi: Callable[[Array], Array] | None = None
+        self.library: Path | None = None
+        """The compiled library Φ runs in; None: uncompiled (known after the first prediction)."""
+
+    def front_function(self, name: str = FRONT) -> ca.Function:
+        """The scaling and the GRU stack on one window (7 × H, column t = row t of the window)
+        as a CasADi function ``name``: the trunk's input, the GRU's outputs row after row (or,
+        without a GRU, the scaled window's rows)."""
+        x = ca.SX.sym("window", N_FEATURES, self.history)
+        scaled = (x - ca.repmat(ca.DM(self.mean), 1, self.history)) / ca.repmat(
+            ca.DM(self.scale), 1, self.history
+        )
+        out = ca.vec(gru_stack(scaled.T, *self.gru).T) if self.gru is not None else ca.vec(scaled)
+        return ca.Function(name, [x], [out])
 
     def phi(self, window: Array) -> Array:
         """Φ (P,) in float64 for one unscaled window (H, 7)."""
-        x = (window - self.mean) / self.scale
-        if self.gru is not None:
-            if self._gru is None:  # built on first use, for this window length
-                self._gru = gru_function(x.shape[0], self.gru, self.compile_settings)
-            x = self._gru(x.reshape(-1))[0]
-        y = x.reshape(-1).astype(np.float32)
-        for layer in self.layers:
-            y = layer(y)
-        y = y.astype(np.float64)
-        if self.guard is not None:
-            lower, upper = self.guard
-            y = np.clip(lower + _sigmoid(y) * (upper - lower), lower, upper)
-        return y
+        if self._phi is None:  # built on first use: a network loaded but never asked costs nothing
+            self._phi = self._build()
+        return self._phi(window)
+
+    def _build(self) -> Callable[[Array], Array]:
+        settings = self.compile_settings
+        if settings and settings.get("enabled", False):
+            # what the generated code depends on besides the trunk: this module's source (the
+            # front's construction), the window length, the scaler, the GRU's weights
+            source = np.frombuffer(Path(__file__).read_bytes(), np.uint8)
+            parts = [source, np.array(self.history), self.mean, self.scale, *(self.gru or ())]
+            compiled = compiled_phi(
+                self.front_function, self.layers, self.guard, parts, dict(settings)
+            )
+            if compiled is not None:
+                function, self.library = compiled
+                call = BufferedCall(function)
+                return lambda window: call(window.reshape(-1))[0].copy()
+        return self.uncompiled_phi()
+
+    def uncompiled_phi(self, front: ca.Function | None = None) -> Callable[[Array], Array]:
+        """Φ of a window through the NumPy trunk, after ``front`` (default: the scaling and the
+        GRU in CasADi's virtual machine; ``benchmarks/model_inference.py`` passes them compiled
+        alone, the previous default)."""
+        call = BufferedCall(front if front is not None else self.front_function())
+        trunk = [_numpy_layer(layer) for layer in self.layers]
+        guard = self.guard
+
+        def phi(window: Array) -> Array:
+            y = call(window.reshape(-1))[0].astype(np.float32)
+            for layer in trunk:
+                y = layer(y)
+            y = y.astype(np.float64)
+            if guard is not None:
+                lower, upper = guard
+                y = np.clip(lower + _sigmoid(y) * (upper - lower), lower, upper)
+            return y
+
+        return phi
 
 
-def _linear(weight: Array, bias: Array) -> Callable[[Array], Array]:
-    return lambda x: x @ weight + bias
+def _numpy_layer(layer: Layer) -> Callable[[Array], Array]:
+    """The uncompiled trunk's layer: float32 NumPy, as the training graph computes it."""
+    weight, bias = layer.weight, layer.bias
+    if layer.kind == "linear":
+        assert weight is not None and bias is not None
+        return lambda x: x @ weight + bias
+    if layer.kind == "layer_norm":
+        assert weight is not None and bias is not None
+        eps = layer.eps
+
+        def layer_norm(x: Array) -> Array:
+            centred = x - x.mean()
+            return centred / np.sqrt((centred * centred).mean() + eps) * weight + bias
+
+        return layer_norm
+    if layer.kind == "gelu":
+        return _gelu
+    return ACTIVATIONS[layer.kind]
 
 
-def _layer_norm(weight: Array, bias: Array, eps: float) -> Callable[[Array], Array]:
-    def layer_norm(x: Array) -> Array:
-        centred = x - x.mean()
-        return centred / np.sqrt((centred * centred).mean() + eps) * weight + bias
+def _sigmoid(x: Array) -> Array:
+    return 0.5 * (1.0 + np.tanh(0.5 * x))
 
-    return layer_norm
+
+def _mish(x: Array) -> Array:
+    return x * np.tanh(np.logaddexp(0.0, x))
+
+
+_ERF: dict[int, BufferedCall] = {}
+
+
+def _gelu(x: Array) -> Array:
+    """Exact GELU, PyTorch's default: 0.5·x·(1 + erf(x/√2)), erf from CasADi (SciPy's
+    ``scipy.special`` costs half a second to import in every rollout process)."""
+    erf = _ERF.get(x.size)
+    if erf is None:
+        s = ca.MX.sym("x", x.size)
+        erf = _ERF[x.size] = BufferedCall(ca.Function("erf", [s], [ca.erf(s)]))
+    e = erf(x * np.float32(1.0 / np.sqrt(2.0)))[0].astype(np.float32)
+    return np.float32(0.5) * x * (np.float32(1.0) + e)
+
+
+ACTIVATIONS: dict[str, Callable[[Array], Array]] = {
+    "mish": _mish,
+    "gelu": _gelu,
+    "relu": lambda x: np.maximum(x, 0.0),
+    "tanh": np.tanh,
+}
 
 
 def save_network(path: str | Path, arrays: Mapping[str, Array]) -> None:

@@ -95,7 +95,7 @@ def load_trained(
     compile_settings: dict[str, Any] | None = None,
 ) -> TrainedModel:
     """The trained model in ``folder`` for the closed loop, or a ``CapeError`` with the fix.
-    ``compile_settings`` (``rollout.compile``) runs its GRU as compiled C."""
+    ``compile_settings`` (``rollout.compile``) runs its Φ as one compiled C function."""
     from cape.models.network import load_network
 
     meta = read_meta(folder)
