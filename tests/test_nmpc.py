@@ -304,11 +304,11 @@ def test_the_robust_margin_grows_with_the_prediction_error(cfg) -> None:
 def test_the_compiled_solver_is_built_once_and_reused(cfg, solver_cache: Path) -> None:
     """The condensed SQP's functions and its IPOPT rescue's NLP: one library each per model
     structure, shared by the three NMPCs and never rebuilt."""
-    _run(cfg)  # compiles (or finds) the libraries
+    assert _run(cfg).controller.rescue is not None  # compiles (or finds) both libraries
     libraries = sorted(solver_cache.glob("*.so"))
     assert [p.name.split("_")[0] for p in libraries] == ["condensed", "ipopt"]
     stamps = [p.stat().st_mtime_ns for p in libraries]
-    _run(cfg, controller="anmpc")  # the same problem structure: the same libraries
+    assert _run(cfg, controller="anmpc").controller.rescue is not None  # the same structure
     assert sorted(solver_cache.glob("*.so")) == libraries
     assert [p.stat().st_mtime_ns for p in libraries] == stamps
 
@@ -319,3 +319,13 @@ def test_a_missing_nmpc_setting_names_the_config_key(cfg) -> None:
     del cfg["controllers"]["rnmpc"]["robust"]["dhat_filter"]
     with pytest.raises(CapeError, match=r"controllers\.rnmpc\.robust.*dhat_filter"):
         _run(cfg, controller="rnmpc")
+
+
+def test_the_library_key_follows_the_stage_costs_settings_only(cfg) -> None:
+    """The three NMPCs share the nominal stage terms, so one key; a cost weight changes it."""
+    nominal = _run(cfg).controller
+    keys = {_run(cfg, controller=name).controller._terms_key() for name in ("anmpc", "rnmpc")}
+    assert keys == {nominal._terms_key()}
+    before = nominal._terms_key()
+    nominal.settings = {**nominal.settings, "Q": 2.0}
+    assert nominal._terms_key() != before

@@ -249,14 +249,20 @@ class NominalNMPC(Controller):
             "ubg": np.array(ubg, dtype=float),
         }
 
+    #: the settings ``stage_terms`` reads; a subclass whose own ``stage_terms`` reads more
+    #: extends this, so that its compiled library is keyed on them
+    terms_settings: ClassVar[tuple[str, ...]] = ("Q", "R", "slack_penalty")
+
     def _terms_key(self) -> str:
-        """What ``stage_terms`` depends on, for the compiled library's key: the settings, the
-        parameter layout, the horizon, and the source of every class this controller is made
-        of (where ``stage_terms`` and what it reads are defined)."""
-        modules = {sys.modules[c.__module__] for c in type(self).__mro__ if c is not object}
+        """What ``stage_terms`` depends on, for the compiled library's key: the settings it
+        reads, the parameter layout, the horizon, and the source of the class that defines it
+        and of the classes it is made of. The adaptive and robust NMPCs inherit the nominal
+        terms, so the three share one library."""
+        owner = next(c for c in type(self).__mro__ if "stage_terms" in vars(c))
+        modules = {sys.modules[c.__module__] for c in owner.__mro__ if c is not object}
         sources = source_digest(*sorted(modules, key=lambda m: m.__name__))
         layout = sorted((k, v.start, v.stop) for k, v in self.layout.items())
-        kept = {k: v for k, v in self.settings.items() if k not in ("label", "compile")}
+        kept = {k: self.settings[k] for k in self.terms_settings}
         settings = json.dumps(kept, sort_keys=True, default=str)
         return f"{settings}|{layout}|{self.horizon}|{sources}"
 
