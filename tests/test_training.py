@@ -17,7 +17,15 @@ from cape.data.windows import make_windows
 from cape.errors import CapeError
 from cape.models.checkpoint import load_model, save_model
 from cape.models.evaluate import count_flops, frozen_parameters, multistep_error, one_step_rmse
-from cape.models.training import TrainingData, train_model
+from cape.models.layers import gru_stages
+from cape.models.training import (
+    AdamStep,
+    PaddedBatches,
+    TrainingData,
+    batch_loss,
+    build_model,
+    train_model,
+)
 from cape.vehicle import GROUND_TRUTH
 
 TS = 0.02
@@ -64,20 +72,96 @@ def test_fused_adam_follows_the_loop_adam_within_rounding(config, small_data) ->
         assert a["val_loss"] == pytest.approx(b["val_loss"], rel=1e-3)
 
 
+GRU_SHAPES = [(7, 7, 7), (8, 10, 10), (7, 5, 5), (1, 4, 3), (3, 4, 1), (2, 3, 6)]
+
+
+@pytest.mark.parametrize(("layers", "hidden", "steps"), GRU_SHAPES)
+def test_the_gru_stage_by_stage_is_the_gru(layers: int, hidden: int, steps: int) -> None:
+    """The training graph's GRU (anti-diagonal stages) is nn.GRU's: outputs and gradients
+    agree to float32 rounding for deep and shallow stacks, long and short windows."""
+    torch.manual_seed(0)
+    gru = torch.nn.GRU(7, hidden, layers, batch_first=True)
+    x = torch.randn(16, steps, 7)
+    reference, staged = gru(x)[0], gru_stages(gru, x)
+    torch.testing.assert_close(staged, reference, rtol=1e-5, atol=1e-6)
+    weights = torch.randn_like(reference)
+    expected = torch.autograd.grad((weights * reference).sum(), list(gru.parameters()))
+    got = torch.autograd.grad((weights * staged).sum(), list(gru.parameters()))
+    for a, b in zip(got, expected, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5 * float(b.abs().max()))
+
+
+def test_padded_batches_keep_the_recipe_order_and_mask_the_padding() -> None:
+    order = torch.randperm(37, generator=torch.Generator().manual_seed(0))
+    batches = list(PaddedBatches(16).of(order))
+    assert [size for *_, size in batches] == [16, 16, 5]
+    assert torch.equal(torch.cat([index[:size] for index, *_, size in batches]), order)
+    for index, mask, count, size in batches:
+        assert len(index) == len(mask) == 16 and float(count) == size
+        assert mask[:size].eq(1).all() and mask[size:].eq(0).all()
+
+
+def test_a_padded_batch_has_the_loss_and_gradients_of_the_batch(config, small_data) -> None:
+    """The rows that pad the last batch to full size change neither its loss (the MSE over its
+    real rows) nor the gradients, up to the rounding of float32 products of another batch
+    size."""
+    data = small_data[7]
+    model = build_model("epm", config["models"]["epm"], TS, seed=0)
+    model.set_scaler(data.scaler.mean, data.scaler.scale)
+    x, y = torch.as_tensor(data.train.features), torch.as_tensor(data.train.labels)
+    index = torch.tensor([5, 3, 11, 2, 40])
+    ((padded_index, mask, count, _),) = PaddedBatches(8).of(index)
+    padded = batch_loss(model, x, y)(padded_index, mask, count)
+    plain = torch.mean((model(x[index], stages=True) - y[index]) ** 2)
+    assert float(padded) == pytest.approx(float(plain), rel=1e-6)
+    params = list(model.parameters())
+    for a, b in zip(torch.autograd.grad(padded, params), torch.autograd.grad(plain, params),
+                    strict=True):  # fmt: skip
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-6 * float(b.abs().max()))
+
+
+def test_adam_step_is_the_optimisers_step_bit_for_bit(config) -> None:
+    """The step without Optimizer.step's bookkeeping is the same update: the same weights and
+    the same optimiser state (so the same checkpoint) after several steps."""
+    spec = config["models"]["dpm"]
+    models = [build_model("dpm", spec, TS, seed=0) for _ in range(2)]
+    optimisers = [torch.optim.Adam(m.parameters(), lr=1e-3, fused=True) for m in models]
+    fast = AdamStep(optimisers[1])
+    generator = torch.Generator().manual_seed(1)
+    for _ in range(4):  # the first creates the state (the fallback), the others run fast
+        for a, b in zip(models[0].parameters(), models[1].parameters(), strict=True):
+            a.grad = torch.randn(a.shape, generator=generator)
+            b.grad = a.grad.clone()
+        optimisers[0].step()
+        fast()
+    for a, b in zip(models[0].state_dict().values(), models[1].state_dict().values(),
+                    strict=True):  # fmt: skip
+        assert torch.equal(a, b)
+    state = [o.state_dict()["state"] for o in optimisers]
+    assert state[0].keys() == state[1].keys()
+    for key in state[0]:
+        for name in ("step", "exp_avg", "exp_avg_sq"):
+            assert torch.equal(state[0][key][name], state[1][key][name])
+
+
 @pytest.mark.slow  # a cold-cache compile: about a minute on two cores
 def test_compiled_training_is_reproducible_and_follows_eager_training(
     config, small_data, tmp_path: Path
 ) -> None:
-    """torch.compile'd steps (issue 15): the same seed twice gives the same losses bit for bit,
-    and the losses follow eager training within 1e-3 relative over the first 20 epochs. A
-    smaller GRU and trunk than EPM's keep the (cold-cache) compile short; the graph is the same
-    kind."""
+    """torch.compile'd steps (issues 15, 22), as the config compiles them (C++ wrapper): the
+    same seed twice gives the same losses bit for bit, and the losses follow eager training
+    within 1e-3 relative over the first 20 epochs (90 windows: two batches of 32 and a last one
+    of 26, padded). A smaller GRU and trunk than EPM's keep the (cold-cache) compile short; the
+    graph is the same kind."""
     head = {"width": 32, "layers": 2, "activation": "gelu", "layer_norm_after": [1]}
     spec = {**config["models"]["epm"], "gru": {"hidden": 7, "layers": 2}, "head": head}
-    settings = {"enabled": True, "cache": str(tmp_path / "inductor")}
+    settings = {**config["training"]["compile"], "cache": str(tmp_path / "inductor")}
+    assert settings["enabled"] and settings["cpp_wrapper"]
+    data = small_data[7]
+    data = TrainingData(data.train.subset(np.arange(90)), data.val, data.scaler)
 
     def run(compile_settings):
-        return train_model("epm", spec, small_data[7], ts=TS, seed=0, epochs=20, progress=False,
+        return train_model("epm", spec, data, ts=TS, seed=0, epochs=20, progress=False,
                            compile_settings=compile_settings)  # fmt: skip
 
     eager, first, second = run(None), run(settings), run(settings)

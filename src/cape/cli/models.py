@@ -73,6 +73,7 @@ def cmd_train(args: argparse.Namespace) -> None:
     from cape.models.checkpoint import save_model
     from cape.models.trained import FORMAT_VERSION
     from cape.models.training import (
+        TRAINING_STEP,
         Checkpointing,
         TrainingData,
         train_model,
@@ -108,7 +109,8 @@ def cmd_train(args: argparse.Namespace) -> None:
     out = Path(args.out)
     data_sha256 = hashlib.sha256(data_path.read_bytes()).hexdigest()
     fused = bool(train_cfg.get("fused_adam", True))
-    compiled = bool((train_cfg.get("compile") or {}).get("enabled", False))
+    compile_cfg = train_cfg.get("compile") or {}
+    compiled = bool(compile_cfg.get("enabled", False))
     fingerprint = training_fingerprint(
         model=args.model,
         spec={k: v for k, v in spec.items() if k not in ("label", "color")},
@@ -120,6 +122,8 @@ def cmd_train(args: argparse.Namespace) -> None:
         threads=threads,
         fused=fused,
         compiled=compiled,
+        cpp_wrapper=compiled and bool(compile_cfg.get("cpp_wrapper", False)),
+        step=TRAINING_STEP,
         torch=torch.__version__,
         format=FORMAT_VERSION,
     )
@@ -152,6 +156,7 @@ def cmd_train(args: argparse.Namespace) -> None:
         "wall_seconds": result.wall_seconds,
         "threads": threads,
         "compiled": compiled,
+        "training_step": TRAINING_STEP,
         "split": split,
         "scaler": data.scaler.to_dict(),
         "data_file": str(data_path),

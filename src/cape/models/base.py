@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from cape.models.layers import ACTIVATIONS, PhysicsGuard, trunk
+from cape.models.layers import ACTIVATIONS, PhysicsGuard, gru_stages, trunk
 from cape.models.network import NETWORK_FORMAT, NumpyNetwork
 from cape.models.physics import N_FEATURES, ModelPhysics
 
@@ -68,21 +68,25 @@ class LearnedModel(nn.Module):
         self.feature_mean.copy_(torch.as_tensor(mean, dtype=torch.float64))
         self.feature_scale.copy_(torch.as_tensor(scale, dtype=torch.float64))
 
-    def phi(self, windows: torch.Tensor) -> torch.Tensor:
-        """Φ (B, P) in float64 for unscaled windows (B, H, 7), whatever the network's precision."""
+    def phi(self, windows: torch.Tensor, stages: bool = False) -> torch.Tensor:
+        """Φ (B, P) in float64 for unscaled windows (B, H, 7), whatever the network's precision.
+        ``stages``: the GRU computed stage by stage (``gru_stages``: the training step's graph,
+        the same equations up to rounding) instead of by ``nn.GRU``."""
         dtype = next(self.output.parameters()).dtype
         out = ((windows - self.feature_mean) / self.feature_scale).to(dtype)
-        if self.gru is not None:
-            out, _ = self.gru(out)  # hidden state starts at zero for every window
+        if self.gru is not None:  # hidden state starts at zero for every window
+            out = gru_stages(self.gru, out) if stages else self.gru(out)[0]
         return self.output(self.trunk(out.reshape(out.shape[0], -1))).to(torch.float64)
 
-    def forward(self, windows: torch.Tensor) -> torch.Tensor:
-        """Next [vx, vy, ω] (B, 3) for unscaled float64 windows (B, H, 7)."""
+    def forward(self, windows: torch.Tensor, stages: bool = False) -> torch.Tensor:
+        """Next [vx, vy, ω] (B, 3) for unscaled float64 windows (B, H, 7); ``stages`` as in
+        ``phi``."""
         last = windows[:, -1, :]
         vx, vy, omega = last[:, 0], last[:, 1], last[:, 2]
         u_fb = (last[:, 3], last[:, 4])
         u_cmd = (last[:, 3] + last[:, 5], last[:, 4] + last[:, 6])
-        nxt = self.physics.step_velocities(vx, vy, omega, u_fb, u_cmd, self.phi(windows))
+        phi = self.phi(windows, stages=True) if stages else self.phi(windows)
+        nxt = self.physics.step_velocities(vx, vy, omega, u_fb, u_cmd, phi)
         return torch.stack(nxt, dim=-1)
 
     # --- export to the closed loop ------------------------------------------------------------

@@ -13,7 +13,7 @@ import json
 import os
 import sys
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,6 +27,12 @@ from cape.errors import CapeError
 from cape.io import write_bytes
 from cape.models.base import LearnedModel
 from cape.models.registry import model_class
+
+TRAINING_STEP = 2
+"""Version of the training step's arithmetic (1: issue 15's, the batch loss eager around a
+compiled forward; 2: the whole padded-batch loss compiled, the GRU stage by stage). It is part
+of a checkpoint's fingerprint, so a training never resumes on another step's float path, and
+``meta.json`` records it."""
 
 
 @dataclass
@@ -128,8 +134,10 @@ def train_model(
     """Train model ``name`` with hyper-parameters ``spec`` (``epochs`` overrides the spec's).
     ``fused``: Adam's fused kernel (one pass over all parameters instead of a loop over the
     tensors: the same update up to rounding, 1.4× faster steps for EPM on one CPU thread).
-    ``compile_settings`` (``training.compile``): the training forward and backward compiled by
-    ``torch.compile`` (the same recipe; losses agree with eager ones to about 1e-6 relative).
+    ``compile_settings`` (``training.compile``): the training step's loss and its backward
+    compiled by ``torch.compile`` (``training_loss``: the same recipe; losses follow eager
+    ones to rounding). Every step sees a full batch (``PaddedBatches``: the last one padded
+    with rows of mask 0), so the compiled graph has one shape.
     ``checkpoint``: resume from it if it exists, and write it every ``every_seconds``."""
     torch.set_num_threads(threads)
     torch.use_deterministic_algorithms(True)
@@ -139,6 +147,7 @@ def train_model(
     n_epochs = int(epochs if epochs is not None else hyper["epochs"])
     batch = int(hyper["batch_size"])
     optimiser = torch.optim.Adam(model.parameters(), lr=float(hyper["lr"]), fused=fused)
+    update = AdamStep(optimiser)
     generator = torch.Generator().manual_seed(seed)
 
     x_train = torch.as_tensor(data.train.features, dtype=torch.float64)
@@ -146,7 +155,7 @@ def train_model(
     x_val = torch.as_tensor(data.val.features, dtype=torch.float64)
     y_val = torch.as_tensor(data.val.labels, dtype=torch.float64)
 
-    forward = training_forward(model, compile_settings)
+    step_loss = training_loss(model, x_train, y_train, compile_settings)
     result = TrainingResult(model=model)
     best_state: dict[str, torch.Tensor] | None = None
     start = time.perf_counter()
@@ -172,22 +181,21 @@ def train_model(
         mininterval=0.5 if sys.stderr.isatty() else 30.0,
         file=sys.stderr,
     )
+    batches = PaddedBatches(batch)
     for epoch in bar:
         model.train()
         order = torch.randperm(len(x_train), generator=generator)
-        total, count = 0.0, 0
-        for first in range(0, len(order), batch):
-            idx = order[first : first + batch]
-            loss = torch.mean((forward(x_train[idx]) - y_train[idx]) ** 2)
+        total = 0.0
+        for index, mask, count, size in batches.of(order):
+            loss = step_loss(index, mask, count)
             optimiser.zero_grad(set_to_none=True)
             loss.backward()
-            optimiser.step()
-            total += loss.item() * len(idx)
-            count += len(idx)
+            update()
+            total += loss.item() * size
         model.eval()
         with torch.no_grad():
             val_loss = float(torch.mean((model(x_val) - y_val) ** 2))
-        train_loss = total / count
+        train_loss = total / len(order)
         result.losses.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss})
         if val_loss < result.best_val_loss:
             result.best_val_loss, result.best_epoch = val_loss, epoch
@@ -219,21 +227,133 @@ def train_model(
     return result
 
 
-def training_forward(
-    model: LearnedModel, settings: Mapping[str, Any] | None
-) -> Callable[[torch.Tensor], torch.Tensor]:
-    """The model's forward for the training steps: the model itself, or (``enabled``) compiled.
+class AdamStep:
+    """``optimiser.step()`` of a fused Adam on the CPU without its per-step Python bookkeeping.
 
-    Why compiled: eager PyTorch runs the GRU as dozens of tiny cells, each a handful of ATen
-    calls and autograd nodes, so a step costs the per-operation overhead; the compiled graph
-    fuses them (measured per step on one thread: EPM 1.8×, DPM 2.4×, DDM 1.35× faster;
-    ``benchmarks/training_step.py``). Dynamo traces through ``nn.GRU`` only with ``allow_rnn``.
-    The graph is static per batch size (the last, shorter batch of an epoch compiles once
-    more); validation stays eager, so only training steps meet the compiled code. Inductor's
-    cache lives under ``cache`` (kept between runs, so a rerun compiles in seconds, not the
-    70–140 s of a cold cache)."""
+    Why: ``Optimizer.step`` re-groups the parameters by device and type, looks their state up
+    and runs its hooks and profiling scopes on every call, about 0.3–0.5 ms a step on one
+    thread (5 % of EPM's compiled step, 5–10 % of DPM's). This calls the same two operations
+    (``_foreach_add_`` of the step counts, then ``_fused_adam_``) with the same arguments, so
+    the update is the same bit for bit (tests/test_training.py); the state stays the
+    optimiser's own, so its ``state_dict`` (the resumable checkpoint) is unchanged. It falls
+    back to ``optimiser.step()`` whenever it is not that case: another optimiser or options,
+    no state yet (the first step creates it), a parameter without a gradient."""
+
+    def __init__(self, optimiser: torch.optim.Optimizer) -> None:
+        self.optimiser = optimiser
+        groups = optimiser.param_groups
+        group = groups[0]
+        self._fast = (
+            type(optimiser) is torch.optim.Adam
+            and len(groups) == 1
+            and bool(group.get("fused"))
+            and not group["amsgrad"]
+            and not group["maximize"]
+            and not group["capturable"]
+            and not group["differentiable"]
+            and not group.get("decoupled_weight_decay", False)
+            and not isinstance(group["lr"], torch.Tensor)
+            and all(p.device.type == "cpu" and p.dtype == torch.float32 for p in group["params"])
+        )
+
+    def __call__(self) -> None:
+        group = self.optimiser.param_groups[0]
+        params: list[torch.Tensor] = group["params"]
+        state = self.optimiser.state
+        grads = [p.grad for p in params]
+        if not self._fast or any(g is None for g in grads) or any(p not in state for p in params):
+            self.optimiser.step()
+            return
+        states = [state[p] for p in params]
+        steps = [s["step"] for s in states]
+        beta1, beta2 = group["betas"]
+        with torch.no_grad():
+            torch._foreach_add_(steps, 1)
+            torch._fused_adam_(
+                params,
+                grads,  # type: ignore[arg-type]
+                [s["exp_avg"] for s in states],
+                [s["exp_avg_sq"] for s in states],
+                [],
+                steps,
+                amsgrad=False,
+                lr=float(group["lr"]),
+                beta1=float(beta1),
+                beta2=float(beta2),
+                weight_decay=float(group["weight_decay"]),
+                eps=float(group["eps"]),
+                maximize=False,
+            )
+
+
+class PaddedBatches:
+    """An epoch's batches in the recipe's order (consecutive slices of ``batch`` windows of the
+    shuffled order, the last one shorter), each padded to ``batch`` rows.
+
+    Why padded: the compiled step has static shapes, so a shorter last batch would compile a
+    second graph (as long to compile as the first). The padding repeats the batch's first
+    window with mask 0, so those rows add nothing to the loss or the gradient and the step is
+    the recipe's: the mean over the batch's real rows."""
+
+    def __init__(self, batch: int) -> None:
+        self.batch = batch
+        self._masks: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
+
+    def _mask(self, size: int) -> tuple[torch.Tensor, torch.Tensor]:
+        if size not in self._masks:
+            mask = torch.zeros(self.batch, dtype=torch.float64)
+            mask[:size] = 1.0
+            self._masks[size] = (mask, torch.tensor(float(size), dtype=torch.float64))
+        return self._masks[size]
+
+    def of(
+        self, order: torch.Tensor
+    ) -> Iterator[tuple[torch.Tensor, torch.Tensor, torch.Tensor, int]]:
+        """(window indices, mask, count of real rows as a tensor, that count) per batch."""
+        for first in range(0, len(order), self.batch):
+            index = order[first : first + self.batch]
+            size = len(index)
+            if size < self.batch:
+                index = torch.cat([index, index[:1].expand(self.batch - size)])
+            yield (index, *self._mask(size), size)
+
+
+def batch_loss(
+    model: LearnedModel, windows: torch.Tensor, labels: torch.Tensor
+) -> Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]:
+    """The training step's loss of a padded batch: the MSE of the next [vx, vy, ω] over its
+    real rows (``mask`` 1). The batch is gathered from the whole training set inside the
+    function, so that a compiled step fuses the gather with the scaling and its backward holds
+    the loss too (no eager indexing, MSE and their autograd nodes per step); the GRU runs
+    stage by stage (``gru_stages``)."""
+
+    def loss(index: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
+        error = model(windows[index], stages=True) - labels[index]
+        return (mask[:, None] * error**2).sum() / (3.0 * count)
+
+    return loss
+
+
+def training_loss(
+    model: LearnedModel,
+    windows: torch.Tensor,
+    labels: torch.Tensor,
+    settings: Mapping[str, Any] | None,
+) -> Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]:
+    """``batch_loss`` as it is, or (``enabled``) compiled by ``torch.compile``.
+
+    Why compiled: eager PyTorch runs the network as hundreds of small operations, each with
+    its dispatch and autograd overhead, so a step costs the overhead, not the arithmetic; the
+    compiled graph fuses them (``benchmarks/training_step.py`` measures it). Dynamo traces
+    through ``nn.GRU``'s parameters only with ``allow_rnn``. The graph is static: one batch
+    size (``PaddedBatches``), so one compile. ``cpp_wrapper``: Inductor's C++ wrapper calls the
+    kernels from C++ instead of Python (the same kernels, so the same numbers; less overhead
+    per step, and the two graphs compile as two C++ files instead of one per kernel).
+    Validation stays eager (``nn.GRU``). Inductor's cache lives under ``cache`` (kept between
+    runs, so a rerun compiles in seconds)."""
+    loss = batch_loss(model, windows, labels)
     if not settings or not settings.get("enabled", False):
-        return model
+        return loss
     import torch._dynamo
 
     if settings.get("cache"):
@@ -245,20 +365,21 @@ def training_forward(
     except Exception as error:  # Inductor's own exception types are private
         raise _compile_error(error) from error
     torch._dynamo.config.allow_rnn = True
-    compiled = torch.compile(model, dynamic=False)
+    options = {"cpp_wrapper": bool(settings.get("cpp_wrapper", False))}
+    compiled = torch.compile(loss, dynamic=False, options=options)
     checked: set[int] = set()
 
-    def forward(windows: torch.Tensor) -> torch.Tensor:
-        if len(windows) in checked:
-            return compiled(windows)
+    def step(index: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
+        if len(index) in checked:
+            return compiled(index, mask, count)
         try:  # a new shape: this call compiles
-            out = compiled(windows)
+            out = compiled(index, mask, count)
         except Exception as error:  # Inductor raises many kinds; one fix
             raise _compile_error(error) from error
-        checked.add(len(windows))
+        checked.add(len(index))
         return out
 
-    return forward
+    return step
 
 
 def _compile_error(error: Exception) -> CapeError:
