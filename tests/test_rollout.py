@@ -289,3 +289,14 @@ def test_plot_rollout(tmp_path: Path, track_dir: Path, config, setting) -> None:
     args = ["plot-rollout", "--run", str(run), "--raceline", str(line), "--out", str(png)]
     assert main([*args, "--config-json", json.dumps(cfg)]) == 0
     assert png.read_bytes().startswith(b"\x89PNG")
+
+
+def test_the_solve_time_percentiles_are_numpys() -> None:
+    """timing.json's solve-time percentiles, computed without NumPy's (which imports numpy.ma)."""
+    from cape.cli.runs import _percentile
+
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 7, 377):
+        values = rng.random(n) * 5
+        for q in (50, 90, 99, 100):
+            assert _percentile(np.sort(values), q) == pytest.approx(np.percentile(values, q))

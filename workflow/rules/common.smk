@@ -6,6 +6,7 @@ import sys
 
 from snakemake.io import report as in_report  # `report(` opening a line is Snakemake's directive
 
+from cape.bytecode import precompile_package
 from cape.config import validate_config
 from cape.controllers import controller_class
 from cape.closedloop.disturbances import validate_sources
@@ -22,6 +23,9 @@ from cape.tracks.manifest import BAYESRACE_FILES
 # anything it cannot prove is left alone, with a message (cape/locks.py).
 if workflow.is_main_process:
     clear_stale_locks(".", report=lambda message: print(message, file=sys.stderr))
+    # every job imports the package: its bytecode is written once here, so that no job
+    # compiles the modules from source where PYTHONDONTWRITEBYTECODE is set (cape/bytecode.py)
+    precompile_package()
 
 SOURCE = "config (config/config.yaml and any --configfile)"
 # the schema (workflow/schemas/config.schema.yaml, defaults filled in) and the cross-field

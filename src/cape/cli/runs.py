@@ -93,6 +93,16 @@ def _rollout_arguments(p: argparse.ArgumentParser) -> None:
     _add_config_args(p)
 
 
+def _percentile(ordered: Any, q: float) -> float:
+    """``np.percentile(values, q)`` (linear interpolation) of already sorted values. Why not
+    NumPy's: its first call imports ``numpy.ma`` (via ``np.unique``), 10–15 ms of every job
+    for four numbers."""
+    position = q / 100 * (len(ordered) - 1)
+    low = int(position)
+    high = min(low + 1, len(ordered) - 1)
+    return float(ordered[low] + (ordered[high] - ordered[low]) * (position - low))
+
+
 @command("rollout", "one closed-loop lap: plant, controller, η, seed (SPEC §5)", _rollout_arguments)
 def cmd_rollout(args: argparse.Namespace) -> None:
     import numpy as np
@@ -135,9 +145,9 @@ def cmd_rollout(args: argparse.Namespace) -> None:
         "seed": args.seed,
         **result.metrics,
     }
-    ms = result.solve_ms
+    ms = np.sort(result.solve_ms)
     timing: dict[str, Any] = {
-        f"solve_ms_{name}": float(np.percentile(ms, q)) if ms.size else None
+        f"solve_ms_{name}": _percentile(ms, q) if ms.size else None
         for name, q in (("median", 50), ("p90", 90), ("p99", 99), ("max", 100))
     }
     # the run's three files appear together or not at all (one folder rename)
