@@ -329,3 +329,20 @@ def test_the_library_key_follows_the_stage_costs_settings_only(cfg) -> None:
     before = nominal._terms_key()
     nominal.settings = {**nominal.settings, "Q": 2.0}
     assert nominal._terms_key() != before
+
+
+def test_the_adaptation_function_is_cached_and_the_same(cfg, solver_cache: Path) -> None:
+    """ANMPC's loss-and-gradient function is read back from the cache, giving the same numbers
+    as one built afresh (the cache only saves building it)."""
+    c = _run(cfg, controller="anmpc").controller
+    assert len(list((solver_cache / "functions").glob("anmpc_adapt_*.casadi"))) == 1
+    again = _run(cfg, controller="anmpc").controller._adapt  # read back
+    fresh = c._build_adaptation()
+    rng = np.random.default_rng(0)
+    args = [rng.normal(size=fresh.size_in(i)) for i in range(fresh.n_in())]
+    args[-1] = np.ones(3)
+    for got, want in zip(again(*args), fresh(*args), strict=True):
+        assert np.array_equal(np.asarray(got), np.asarray(want))
+    key = c._adaptation_key()
+    c.alpha *= 2
+    assert c._adaptation_key() != key  # another step size: another function
