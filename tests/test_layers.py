@@ -14,7 +14,7 @@ from cape.config import REPO_ROOT
 
 FLOORS = [
     ("errors", "io", "integrity", "buffered", "compiled", "locks", "config", "registry", "paper",
-     "tables", "parquet", "interrupt"),
+     "tables", "parquet", "interrupt", "bytecode"),
     ("vehicle",), ("tracks",), ("data",), ("models",), ("controllers",), ("closedloop",),
     ("plots",), ("study",), ("cli",),
 ]  # fmt: skip

@@ -47,12 +47,14 @@ class Interrupted(BaseException):
 
 def _terminated(signum: int, _frame: object) -> None:
     interrupt.requested.append(Interrupted(signum))
-    raise interrupt.requested[-1]
+    if not interrupt.deferring():  # within a lap the loop raises it (cape.interrupt)
+        raise interrupt.requested[-1]
 
 
 def _interrupted(signum: int, _frame: object) -> None:
     interrupt.requested.append(KeyboardInterrupt())
-    raise interrupt.requested[-1]
+    if not interrupt.deferring():
+        raise interrupt.requested[-1]
 
 
 def describe_os_error(exc: OSError) -> str:

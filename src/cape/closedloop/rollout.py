@@ -80,56 +80,58 @@ def run_lap(
     rescued, iterations = 0, []
     last_pose = x[:2].copy()
     centre_s = track.center.project(x[0], x[1]).s
-    for k in range(max_steps):
-        ref = line.points(proj_seen.s, horizon)
-        start = time.perf_counter()
-        try:
-            u_cmd, info = controller.step(z, proj_seen, ref)
-        except FloatingPointError:
-            failure = "diverged"
-            break
-        solve_ms.append((time.perf_counter() - start) * 1e3)
-        interrupt.check()  # a Ctrl-C the controller's solver swallowed stops the run here
-        fallback_steps.append(bool(info.get("fallback", False)))
-        rescued += bool(info.get("rescued", False))
-        if "iterations" in info:
-            iterations.append(int(info["iterations"]))
-        if not np.isfinite(u_cmd).all():
-            failure = "diverged"
-            break
-        u_app = disturbances.actuate(u_cmd)
-        start = time.perf_counter()
-        x_plant = plant.step(u_app)
-        plant_s += time.perf_counter() - start
-        x = disturbances.after_plant(x_plant)
-        steps = k + 1
-        if not np.isfinite(x).all():
-            failure = "diverged"
-            break
-        last_pose = x[:2].copy()
-        proj_car = car.update(x[0], x[1])
-        # tracking errors against the reference point issued for this step (k = 1)
-        x_ref, y_ref, psi_ref = ref.at(1)
-        dx, dy = x_ref - x[0], y_ref - x[1]
-        e_x = dx * math.cos(psi_ref) + dy * math.sin(psi_ref)
-        e_y = -dx * math.sin(psi_ref) + dy * math.cos(psi_ref)
-        psi_path = line.path.heading_at(proj_car.s)
-        e_cte = cross_track_error(x[0], x[1], proj_car.x, proj_car.y, psi_path)
-        z = disturbances.measure(x)
-        reference = (x_ref, y_ref, psi_ref, float(ref.speed[1]))
-        errors = (e_x, e_y, e_cte, wrap_angle(psi_path - x[2]))
-        rows.append(((k + 1) * ts, *x, *z, *reference, *u_cmd, *u_app, *errors, solve_ms[-1]))
-        on_centre = track.center.project(x[0], x[1], s_hint=centre_s, window=line.window)
-        centre_s = on_centre.s
-        if abs(on_centre.offset) > track.width / 2:
-            failure = "off_track"
-            break
-        if car.total >= line.length:
-            lap_time = round((k + 1) * ts, 9)  # 7.56, not 7.5600000000000005
-            break
-        proj_seen = seen.update(z[0], z[1])
-    else:
-        failure = "timeout"
+    # signals are raised by the loop's own check, never inside a solver (cape.interrupt)
+    with interrupt.deferred():
+        for k in range(max_steps):
+            ref = line.points(proj_seen.s, horizon)
+            start = time.perf_counter()
+            try:
+                u_cmd, info = controller.step(z, proj_seen, ref)
+            except FloatingPointError:
+                failure = "diverged"
+                break
+            solve_ms.append((time.perf_counter() - start) * 1e3)
+            interrupt.check()  # a Ctrl-C or SIGTERM during the step stops the run here
+            fallback_steps.append(bool(info.get("fallback", False)))
+            rescued += bool(info.get("rescued", False))
+            if "iterations" in info:
+                iterations.append(int(info["iterations"]))
+            if not np.isfinite(u_cmd).all():
+                failure = "diverged"
+                break
+            u_app = disturbances.actuate(u_cmd)
+            start = time.perf_counter()
+            x_plant = plant.step(u_app)
+            plant_s += time.perf_counter() - start
+            x = disturbances.after_plant(x_plant)
+            steps = k + 1
+            if not np.isfinite(x).all():
+                failure = "diverged"
+                break
+            last_pose = x[:2].copy()
+            proj_car = car.update(x[0], x[1])
+            # tracking errors against the reference point issued for this step (k = 1)
+            x_ref, y_ref, psi_ref = ref.at(1)
+            dx, dy = x_ref - x[0], y_ref - x[1]
+            e_x = dx * math.cos(psi_ref) + dy * math.sin(psi_ref)
+            e_y = -dx * math.sin(psi_ref) + dy * math.cos(psi_ref)
+            psi_path = line.path.heading_at(proj_car.s)
+            e_cte = cross_track_error(x[0], x[1], proj_car.x, proj_car.y, psi_path)
+            z = disturbances.measure(x)
+            reference = (x_ref, y_ref, psi_ref, float(ref.speed[1]))
+            errors = (e_x, e_y, e_cte, wrap_angle(psi_path - x[2]))
+            rows.append(((k + 1) * ts, *x, *z, *reference, *u_cmd, *u_app, *errors, solve_ms[-1]))
+            on_centre = track.center.project(x[0], x[1], s_hint=centre_s, window=line.window)
+            centre_s = on_centre.s
+            if abs(on_centre.offset) > track.width / 2:
+                failure = "off_track"
+                break
+            if car.total >= line.length:
+                lap_time = round((k + 1) * ts, 9)  # 7.56, not 7.5600000000000005
+                break
+            proj_seen = seen.update(z[0], z[1])
+        else:
+            failure = "timeout"
     table = np.array(rows, dtype=float).reshape(-1, len(SERIES_KEYS))
     series = {key: np.ascontiguousarray(table[:, j]) for j, key in enumerate(SERIES_KEYS)}
     metrics = summarise(series, failure, lap_time, steps, time_limit, penalty)
