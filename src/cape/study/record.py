@@ -40,12 +40,6 @@ METRICS_SCHEMA = REPO_ROOT / "workflow" / "schemas" / "metrics.schema.yaml"
 SERIES_KEY = "series_sha256"
 
 
-def series_bytes(columns: Mapping[str, np.ndarray]) -> bytes:
-    """Equal-length float columns as Parquet bytes (``cape.parquet``: no pyarrow to import in
-    each of thousands of rollout jobs)."""
-    return parquet_bytes(columns)
-
-
 def write_run_files(
     folder: Path, metrics: Mapping[str, Any], series: Mapping[str, np.ndarray]
 ) -> str:
@@ -53,7 +47,7 @@ def write_run_files(
     folder of ``cape.io.atomic_folder``); returns the series' digest, which ``write_timing``
     records. The series holds the per-step solve times, wall-clock numbers, so its digest
     goes with the timing, and ``metrics.json`` stays byte-identical across reruns."""
-    data = series_bytes(series)
+    data = parquet_bytes(series)  # cape.parquet: no pyarrow to import in every rollout job
     write_bytes(folder / "timeseries.parquet", data)
     text = json.dumps(sealed_record(metrics), indent=2, sort_keys=True) + "\n"
     write_bytes(folder / "metrics.json", text.encode())
