@@ -48,9 +48,14 @@ def _run(config, setting, controller, plant=None, eta=0.0, seed=0):
     return run_lap(plant, controller, line, track, dist, **limits)
 
 
-def _controller(config, setting, name: str, cfg=None):
-    settings = (cfg or config)["controllers"][name]
-    return controller_class(name, settings)(settings, setting[1], ACTUATOR_LIMITS, TS, name=name)
+def _controller(config, setting, name: str, cfg=None, eta: float = 0.0):
+    """The controller ``name``, told the steering delay of the run at ``eta`` (as build_run)."""
+    cfg = cfg or config
+    settings = cfg["controllers"][name]
+    delay = DisturbancePipeline.from_config(cfg["disturbances"], eta, 0).steering_delay(TS)
+    return controller_class(name, settings)(
+        settings, setting[1], ACTUATOR_LIMITS, TS, name=name, actuator_delay=delay
+    )
 
 
 @pytest.mark.parametrize("name", ["pid", "rise"])
@@ -72,7 +77,8 @@ def test_latency_compensated_pid_and_rise_survive_the_steering_delay(config, set
     """SPEC §7.1–7.2: with the preview the laws lap at η = 1 and 2 (every source active, the
     20 ms steering delay included); the laws as printed do not (next test)."""
     for eta, seed in ((1.0, 0), (2.0, 1)):
-        m = _run(config, setting, _controller(config, setting, name), eta=eta, seed=seed).metrics
+        controller = _controller(config, setting, name, eta=eta)
+        m = _run(config, setting, controller, eta=eta, seed=seed).metrics
         assert m["success"], (eta, seed, m)
         assert m["lap_time"] < 8.2
 
@@ -82,7 +88,7 @@ def test_the_laws_as_printed_leave_the_track_at_eta_1(config, setting, name: str
     """The finding stays reproducible: without latency compensation both laws lap at η = 0 and
     leave the track at η = 1."""
     assert _run(config, setting, _controller(config, setting, name)).metrics["success"]
-    m = _run(config, setting, _controller(config, setting, name), eta=1.0).metrics
+    m = _run(config, setting, _controller(config, setting, name, eta=1.0), eta=1.0).metrics
     assert m["failure"] == "off_track"
     assert 0.0 <= m["failure_fraction"] < 1.0
 
@@ -97,7 +103,7 @@ def test_the_steering_delay_alone_takes_the_printed_pid_off_the_track(config, se
         for source in SOURCES:
             if source not in active:
                 cfg["disturbances"][source]["active_from"] = float("inf")
-        return _run(cfg, setting, _controller(cfg, setting, "pid_paper"), eta=0.5).metrics
+        return _run(cfg, setting, _controller(cfg, setting, "pid_paper", cfg, 0.5), eta=0.5).metrics
 
     assert lap({"steering_delay"})["failure"] == "off_track"
     assert lap(set(SOURCES) - {"steering_delay"})["success"]

@@ -183,7 +183,7 @@ def test_config_tables_come_from_the_config(config: dict) -> None:
     assert at2["measurement noise σ (%)"] == "2.0" and at2["process noise σ (%)"] == "4.0"
     table2 = controller_parameters(config["controllers"])
     pid = table2[table2["controller"] == "PID"].set_index("parameter")["value"]
-    assert pid["heading.kp"] == 2.2 and pid["lookahead.time"] == 0.05 and pid["preview"] == 0.04
+    assert pid["heading.kp"] == 2.2 and pid["lookahead.time"] == 0.05 and pid["lead"] == 0.02
     assert not table2["parameter"].str.startswith("compile").any()
 
 

@@ -328,6 +328,10 @@ class DisturbancePipeline:
         ]
         return cls(eta, np.random.default_rng(seed), sources)
 
+    def steering_delay(self, ts: float) -> float:
+        """The actuator's steering delay in this run (s): what a controller is told (SPEC §7.1)."""
+        return self.delay.steps * ts if self.delay is not None else 0.0
+
     def active_sources(self) -> list[str]:
         return [s.name for s in self.sources]
 

@@ -77,7 +77,7 @@ class ModelFolders:
     """Where each trained model's files are: the folder given for its name (what a workflow
     rule declares as its inputs), else ``<root>/<name>`` (the command line's ``--models-dir``)."""
 
-    root: Path = Path("results/models")
+    root: Path = Path("results/models/rep0")
     named: Mapping[str, Path] = field(default_factory=dict)
 
     def __call__(self, name: str) -> Path:
@@ -234,6 +234,7 @@ def build_run(
         track=track,
         internal=internal_model,
         name=controller_name,
+        actuator_delay=disturbances.steering_delay(ts),  # SPEC §7.1: the latency, never η
         **extra,
     )
     return Run(

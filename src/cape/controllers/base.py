@@ -17,6 +17,20 @@ from cape.tracks.geometry import Projection
 from cape.tracks.reference import ReferenceLine, ReferencePoints
 from cape.vehicle.params import ActuatorLimits
 
+PREVIEW_SCHEMA: dict[str, Any] = {
+    "lead": {"type": "number", "minimum": 0},
+    "compensate_delay": {"type": "boolean"},
+}
+"""The feedback laws' latency compensation (SPEC §7.1): the preview is the actuator's steering
+delay (when ``compensate_delay``) plus the law's own ``lead`` (s)."""
+
+
+def preview_time(settings: dict[str, Any], actuator_delay: float) -> float:
+    """How far ahead the measured pose is predicted (s): the actuator's delay, if the law
+    compensates it, plus the law's own lead."""
+    delay = actuator_delay if settings["compensate_delay"] else 0.0
+    return delay + float(settings["lead"])
+
 
 def preview_pose(z: np.ndarray, t_p: float) -> tuple[float, float, float]:
     """The measured pose predicted ``t_p`` seconds ahead with the measured body velocities held
@@ -132,6 +146,7 @@ class Controller:
         track: Any = None,
         internal: Any = None,
         name: str | None = None,
+        actuator_delay: float = 0.0,
     ) -> None:
         if name is not None:
             self.name = name  # the config entry's name (several entries may share one class)
@@ -141,6 +156,9 @@ class Controller:
         self.ts = ts
         self.track = track  # the Track, for controllers with track constraints
         self.internal = internal  # an InternalModel, for model-based controllers
+        # the steering delay of the run's actuator (s): a racing stack knows its own latency
+        # (SPEC §7.1); a controller is told this, never η or a draw
+        self.actuator_delay = float(actuator_delay)
         self.u_prev = np.zeros(2)
 
     def reset(self, z0: np.ndarray) -> None:

@@ -5,10 +5,13 @@ Heading and cross-track errors are taken at a look-ahead point ahead of the proj
 fixed ``L`` metres ahead (the paper-literal 0.05 m). e_cte is the paper's (positive left of the
 line), so it enters negated: a car left of the line steers right.
 
-Latency compensation: the errors are computed from the measured pose predicted ``preview``
-seconds ahead (``preview_pose``), because the one-step steering delay of SPEC §6 meets a yaw
-response fast enough (17–31 rad/s per rad) to make the uncompensated law a ±0.35 rad limit
-cycle. ``preview: 0`` with a fixed look-ahead is the law as printed (the ``pid_paper`` entry).
+Latency compensation: the errors are computed from the measured pose predicted ahead
+(``preview_pose``) by the actuator's steering delay plus the law's own ``lead``
+(``preview_time``), because the one-step steering delay of SPEC §6 meets a yaw response fast
+enough (17–31 rad/s per rad) to make the uncompensated law a ±0.35 rad limit cycle. The
+controller is told the run's delay (none at η = 0), so the preview matches the actuator.
+``lead: 0`` and ``compensate_delay: false`` with a fixed look-ahead is the law as printed (the
+``pid_paper`` entry).
 """
 
 from __future__ import annotations
@@ -17,12 +20,20 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from cape.controllers.base import GAINS, Controller, PIDLoop, preview_pose, require
+from cape.controllers.base import (
+    GAINS,
+    PREVIEW_SCHEMA,
+    Controller,
+    PIDLoop,
+    preview_pose,
+    preview_time,
+    require,
+)
 from cape.controllers.registry import register_controller
 from cape.tracks.geometry import Projection, cross_track_error, wrap_angle
 from cape.tracks.reference import ReferencePoints
 
-SETTINGS = ("speed", "heading", "cross_track", "lookahead", "preview")
+SETTINGS = ("speed", "heading", "cross_track", "lookahead", "lead", "compensate_delay")
 
 
 @register_controller("pid")
@@ -45,14 +56,14 @@ class PIDController(Controller):
                     "distance": {"type": "number", "minimum": 0},
                 },
             },
-            "preview": {"type": "number", "minimum": 0},
+            **PREVIEW_SCHEMA,
         },
     }
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         require(self.settings, SETTINGS, f"controllers.{self.name}")
-        self.preview = float(self.settings["preview"])
+        self.preview = preview_time(self.settings, self.actuator_delay)
         ahead = self.settings["lookahead"]
         self.lookahead_time = float(ahead.get("time", 0.0))
         self.lookahead_distance = float(ahead.get("distance", 0.0))

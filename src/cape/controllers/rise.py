@@ -11,10 +11,11 @@ gains where they have a place:
 with |∫β·sgn(e2) dt| ≤ k_u (anti-windup for the robust term), and throttle from the PID speed
 loop with its proportional gain set to k_v.
 
-Latency compensation (SPEC §7.1–7.2): e1 and ė1 come from the measured pose predicted
-``preview`` seconds ahead, and the steering is scaled by min(1, v0/vx) with
-``v0 = speed_schedule`` (the yaw gain grows with speed). ``preview: 0`` and
-``speed_schedule: null`` give the law as printed (the ``rise_paper`` entry).
+Latency compensation (SPEC §7.1–7.2): e1 and ė1 come from the measured pose predicted ahead by
+the actuator's steering delay plus the law's own ``lead`` (``preview_time``), and the steering is
+scaled by min(1, v0/vx) with ``v0 = speed_schedule`` (the yaw gain grows with speed).
+``lead: 0``, ``compensate_delay: false`` and ``speed_schedule: null`` give the law as printed
+(the ``rise_paper`` entry).
 """
 
 from __future__ import annotations
@@ -24,12 +25,23 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from cape.controllers.base import GAINS, Controller, PIDLoop, preview_pose, require
+from cape.controllers.base import (
+    GAINS,
+    PREVIEW_SCHEMA,
+    Controller,
+    PIDLoop,
+    preview_pose,
+    preview_time,
+    require,
+)
 from cape.controllers.registry import register_controller
 from cape.tracks.geometry import Projection, cross_track_error
 from cape.tracks.reference import ReferencePoints
 
-SETTINGS = ("ks", "alpha", "beta", "ku", "sign_width", "kv", "speed", "preview", "speed_schedule")
+SETTINGS = (
+    "ks", "alpha", "beta", "ku", "sign_width", "kv", "speed", "lead", "compensate_delay",
+    "speed_schedule",
+)  # fmt: skip
 
 
 @register_controller("rise")
@@ -39,10 +51,8 @@ class RISEController(Controller):
         "required": list(SETTINGS),
         "additionalProperties": False,
         "properties": {
-            **{
-                k: {"type": "number", "minimum": 0}
-                for k in ("ks", "alpha", "beta", "ku", "kv", "preview")
-            },
+            **{k: {"type": "number", "minimum": 0} for k in ("ks", "alpha", "beta", "ku", "kv")},
+            **PREVIEW_SCHEMA,
             "sign_width": {"type": "number", "exclusiveMinimum": 0},
             "speed": GAINS,
             "speed_schedule": {"type": ["number", "null"], "exclusiveMinimum": 0},
@@ -56,7 +66,7 @@ class RISEController(Controller):
         self.ks, self.alpha = float(s["ks"]), float(s["alpha"])
         self.beta, self.ku = float(s["beta"]), float(s["ku"])
         self.sign_width = float(s["sign_width"])
-        self.preview = float(s["preview"])
+        self.preview = preview_time(s, self.actuator_delay)
         self.v0 = None if s["speed_schedule"] is None else float(s["speed_schedule"])
 
     def reset(self, z0: np.ndarray) -> None:
