@@ -646,7 +646,7 @@ def main() -> None:
                         help="the folder acados was installed into with pip --target")  # fmt: skip
     parser.add_argument("--internal", nargs="+", default=["truth", "epm"])
     parser.add_argument("--eta", nargs="+", type=float, default=[0.0, 4.0])
-    parser.add_argument("--models", type=Path, default=Path("results/models"))
+    parser.add_argument("--models", type=Path, default=Path("results/models/rep0"))
     parser.add_argument("--build", type=Path, default=Path("results/acados"),
                         help="where acados's generated code and libraries go")  # fmt: skip
     parser.add_argument("--condensing", nargs="+", choices=list(CONDENSING),

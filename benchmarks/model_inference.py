@@ -9,7 +9,7 @@ rollout calls one path only, so each path's weights are in cache as they are the
 median and p90 per call, and the speed-up over the previous default. Then the largest change
 of Φ over every ETHZMobil window, compiled against the previous default and against the
 PyTorch graph: absolute, and relative to each component's largest magnitude. Uses the
-trained models under results/models/ when present (else freshly initialised ones: the timing
+trained models under results/models/rep0/ when present (else freshly initialised ones: the timing
 does not depend on the weights).
 
     python benchmarks/model_inference.py [--rounds 60] [--block 25] [--cache DIR]
@@ -77,7 +77,7 @@ def main() -> None:
         data = {k: npz[k] for k in npz.files}
     rows = []
     for name, spec in config["models"].items():
-        folder = Path("results/models") / name
+        folder = Path("results/models/rep0") / name
         if (folder / "model.pt").is_file():
             model, source = load_model(folder, name), "trained"
         else:

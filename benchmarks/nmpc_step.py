@@ -20,7 +20,7 @@ share of problems within 1e-3 and where in the lap the others are.
     python benchmarks/nmpc_step.py [--internal epm truth] [--eta 0 4] [--stride 10]
                                     [--repeats 3] [--json PATH]
 
-The internal models are trained models from results/models/ (or ``truth``, which needs none).
+The internal models are trained models from results/models/rep0/ (or ``truth``, which needs none).
 """
 
 from __future__ import annotations
@@ -194,7 +194,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--internal", nargs="+", default=["epm", "truth"])
     parser.add_argument("--eta", nargs="+", type=float, default=[0.0, 4.0])
-    parser.add_argument("--models", type=Path, default=Path("results/models"))
+    parser.add_argument("--models", type=Path, default=Path("results/models/rep0"))
     parser.add_argument("--stride", type=int, default=10, help="(a) times every n-th problem")
     parser.add_argument("--repeats", type=int, default=3, help="replays of each lap (default)")
     parser.add_argument("--json", type=Path, help="also write the figures here")

@@ -18,7 +18,7 @@ casadi"`` (the floor of any job that needs them), and prints per job kind the me
     python benchmarks/rollout_job.py [--rounds 5] [--internal epm] [--eta 1]
                                      [--controllers pid nmpc anmpc rnmpc]
 
-It needs what the rollouts need: ``snakemake --cores 2 results/models/epm/network.npz
+It needs what the rollouts need: ``snakemake --cores 2 results/models/rep0/epm/network.npz
 results/raceline/ETHZMobil.npz``, and the compiled solvers (``snakemake --cores 2
 results/solvers/nmpc/epm.json`` …; the first job of each controller compiles otherwise, and
 that round is then dropped from the medians).

@@ -24,11 +24,13 @@ PHASES = ("startup", "config", "build", "lap", "write")
 
 
 def training(results: Path) -> dict[str, float]:
-    """Wall seconds of each model's training job."""
+    """Wall seconds of each model's training job, by replicate (``rep<r>/<model>``)."""
     out = {}
-    for path in sorted((results / "benchmarks" / "train").glob("*.tsv")):
+    for path in sorted((results / "benchmarks" / "train").glob("rep*/*.tsv")):
         with path.open() as handle:
-            out[path.stem] = float(next(csv.DictReader(handle, delimiter="\t"))["s"])
+            out[f"{path.parent.name}/{path.stem}"] = float(
+                next(csv.DictReader(handle, delimiter="\t"))["s"]
+            )
     return out
 
 

@@ -23,7 +23,8 @@ from cape.config import load_config
 
 def outcome(config: dict, plant: str, controller: str, eta: float, seed: int) -> str:
     """'lap' or the step at which the run failed."""
-    result = build_run(config, plant, controller, eta, seed, None, Path("results/models"), None)()
+    models = Path("results/models/rep0")
+    result = build_run(config, plant, controller, eta, seed, None, models, None)()
     return "lap" if result.metrics["success"] else f"step {result.metrics['steps']}"
 
 

@@ -136,7 +136,7 @@ def test_a_disturbance_source_added_by_config_alone_reaches_the_runs_and_table_3
     (work / "config").mkdir()
     (work / "config" / "config.yaml").write_text(yaml.safe_dump(cfg))
 
-    run = "results/runs/truth/truth/truth/pid/eta{}/seed0/timeseries.parquet"
+    run = "results/runs/truth/rep0/truth/truth/pid/eta{}/seed0/timeseries.parquet"
     targets = ["results/tables/table03_uncertainty_activation.csv", run.format(0), run.format(1)]
     snakefile = str(REPO_ROOT / "Snakefile")
     result = subprocess.run(

@@ -282,7 +282,7 @@ def test_plot_rollout(tmp_path: Path, track_dir: Path, config, setting) -> None:
     )
     result = _run(config, setting, controller)
     meta = {"study": "adhoc", "plant": "truth", "controller": "rise", "internal": "truth",
-            "eta": "0", "seed": 0}  # fmt: skip
+            "eta": "0", "seed": 0, "replicate": 0}  # fmt: skip
     digest = write_run_files(run, {**meta, **result.metrics}, result.series)
     write_timing(run, {"solve_ms_median": None}, digest)  # the record as `cape rollout` writes
     line = tmp_path / "line.npz"

@@ -93,7 +93,7 @@ def rollout(setup: dict, out: Path, cwd: Path | None = None, **names: str):
 @pytest.fixture(scope="module")
 def a_run(setup: dict) -> Path:
     """One real run's folder (PID on the ground-truth car), laid out as the workflow's."""
-    out = setup["root"] / "runs" / "truth" / "truth" / "truth" / "pid" / "eta0" / "seed0"
+    out = setup["root"] / "runs" / "truth" / "rep0" / "truth" / "truth" / "pid" / "eta0" / "seed0"
     result = rollout(setup, out)
     assert result.returncode == 0, result.stderr
     return out
@@ -167,8 +167,8 @@ def test_an_intact_run_aggregates(setup: dict, a_run: Path, tmp_path: Path) -> N
 def _damaged(a_run: Path, tmp_path: Path, edit) -> Path:
     """A copy of the runs root with the run damaged by ``edit(folder)``."""
     root = tmp_path / "runs"
-    shutil.copytree(a_run.parents[5], root)
-    folder = root / a_run.relative_to(a_run.parents[5])
+    shutil.copytree(a_run.parents[6], root)
+    folder = root / a_run.relative_to(a_run.parents[6])
     edit(folder)
     return folder
 
@@ -245,7 +245,7 @@ def test_a_run_copied_into_another_runs_folder_is_refused(
 ) -> None:
     """A ground-truth run's metrics copied into the learned study's DPM/PID folder."""
     root = setup["root"] / "runs"
-    fake = root / "learned" / "dpm" / "dpm" / "pid" / "eta0" / "seed0"
+    fake = root / "learned" / "rep0" / "dpm" / "dpm" / "pid" / "eta0" / "seed0"
     shutil.copytree(a_run, fake)
     try:
         result = aggregate(
@@ -518,7 +518,7 @@ def _bad_config(tmp_path: Path, overlay: dict) -> Path:
         ),
         ({"study": {"studies": {"learned": {"plants": ["epm", "epm"]}}}}, ["non-unique"]),
         ({"study": {"seeds": 1000000}}, ["study.seeds", "maximum"]),
-        ({"study": {"seeds": 1000}}, ["538,000 runs", "study.max_runs"]),
+        ({"study": {"seeds": 1000}}, ["868,000 runs", "study.max_runs"]),
         (
             {"models": {"dpm": {"module": "no_such_module"}}},
             ["models.dpm.module", "no_such_module"],

@@ -28,13 +28,15 @@ STUDIES = {"learned": {"plants": ["epm"]}, "truth": {"plants": ["truth"], "inter
 
 
 def _write_run(root: Path, study: str, plant: str, internal: str, controller: str, eta: str,
-               seed: int, success: bool, lap: float | None, ey: float) -> Path:  # fmt: skip
+               seed: int, success: bool, lap: float | None, ey: float,
+               replicate: int = 0) -> Path:  # fmt: skip
     """A run's folder as `cape rollout` writes it (cape.study.record), with these metrics."""
-    folder = RunId(study, plant, internal, controller, eta, seed).folder(root)
+    folder = RunId(study, plant, internal, controller, eta, seed, replicate).folder(root)
     folder.mkdir(parents=True)
     metrics = {
         "study": study, "plant": plant, "internal": internal, "controller": controller, "eta": eta,
-        "seed": seed, "success": success, "failure": None if success else "off_track",
+        "seed": seed, "replicate": replicate, "success": success,
+        "failure": None if success else "off_track",
         "lap_time": lap if success else None, "lap_time_penalised": lap if success else 15.0,
         "mean_abs_ex": ey / 2, "mean_abs_ey": ey, "mean_abs_ex_penalised": ey / 2 if success
         else 0.23, "mean_abs_ey_penalised": ey if success else 0.23, "mean_abs_cte": ey,
@@ -196,28 +198,39 @@ def test_the_scorecard_recomputes_the_claims_per_seed() -> None:
                 rows.append({
                     "study": "learned", "model": model, "controller": controller, "eta": 1.0,
                     "seed": seed, "success": not fail, "lap_time_penalised": lap + seed,
-                    "mean_abs_ex_penalised": ex, "mean_abs_ey_penalised": ex,
+                    "mean_abs_ex_penalised": ex * (1 + 0.1 * seed), "mean_abs_ey_penalised": ex,
                     "mean_speed": 2.0 if model == "epm" else 1.0,
                 })  # fmt: skip
-    table = pd.DataFrame(learned_claims(pd.DataFrame(rows)))
-    lap = table[table["claim"].str.startswith("adaptive")].set_index("item")
-    assert lap.loc["EPM", "ours_mean"] == pytest.approx(7.0)  # mean over seeds of 6, 7, 8
-    assert lap.loc["EPM", "ci95"] > 0 and set(lap["holds"]) == {"yes"}
-    speed = table[table["claim"].str.contains("mean_speed") & (table["item"] == "vs DPM")]
-    assert speed["ours_mean"].iloc[0] == pytest.approx(100.0) and speed["holds"].iloc[0] == "yes"
-    fails = table[table["claim"].str.startswith("NMPC-family")].set_index("item")
-    assert fails.loc["DPM", "ours_mean"] == 1 and fails.loc["EPM", "holds"] == "yes"
+    table = pd.DataFrame(learned_claims(pd.DataFrame(rows)))  # no replicate column: replicate 0
+    lap = table[table["claim"].str.startswith("adaptive")].set_index("comparison")
+    # EPM − DDM is −2 s in every seed (6, 7, 8 against 8, 9, 10): an interval of one point
+    assert (
+        lap.loc["EPM − DDM", "ci95_low"] == pytest.approx(-2.0) == lap.loc["EPM − DDM", "ci95_high"]
+    )
+    assert lap.loc["EPM − DDM", "ours"].startswith("-2 s (EPM 7, DDM 9)")
+    assert set(lap["verdict"]) == {"holds"} and set(lap["verdict rep0"]) == {"holds"}
+    speed = table[table["claim"].str.contains("mean_speed") & (table["comparison"] == "EPM vs DPM")]
+    assert speed["ci95_low"].iloc[0] == pytest.approx(100.0) and speed["verdict"].iloc[0] == "holds"
+    fails = table[table["claim"].str.startswith("NMPC-family")].set_index("comparison")
+    assert (
+        fails.loc["EPM − DPM", "ci95_high"] == -1 and fails.loc["EPM − DPM", "verdict"] == "holds"
+    )
+    # EPM and DDM both fail none: a tie, which the interval cannot place on the paper's side
+    assert fails.loc["EPM − DDM", "verdict"] == "inconclusive"
     # one claim, one label: the grid's 2 NMPCs × 1 η, whichever runs a model has so far
     incomplete = pd.DataFrame(rows).query("not (model == 'ddm' and controller == 'nmpc')")
     labels = pd.DataFrame(learned_claims(incomplete))["claim"]
-    assert set(labels[labels.str.startswith("NMPC-family")]) == {"NMPC-family failures of 2 runs"}
+    assert set(labels[labels.str.startswith("NMPC-family")]) == {
+        "NMPC-family failures of 2 runs: EPM fewest"
+    }
 
     page = at_a_glance(table, pd.DataFrame(rows))
     assert page.startswith("# CAPE results at a glance")
     assert "| learned | 27 | 89% |" in page  # 3 of the 27 runs (DPM, nominal NMPC) failed
-    held = int((table["holds"] == "yes").sum())
-    assert f"holds for {held} of {len(table)} rows" in page
-    assert page.count("\n| adaptive NMPC lap time") == 1 + 3  # its summary, then its 3 rows
+    every = int((table["verdict rep0"] == "holds").sum())
+    assert f"## Holds in every replicate: {every} of {len(table)} rows" in page
+    assert "## Inconclusive (pooled): 1 of" in page
+    assert page.count("\n| adaptive NMPC lap time") == 3  # its three rows in the full table
 
 
 def test_signal_axes_ignore_the_samples_of_a_diverging_plant() -> None:

@@ -251,7 +251,7 @@ def test_the_documented_command_resumes_after_kill_9(tmp_path: Path) -> None:
     cfg = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
     cfg["tracks"]["mirror"] = str((REPO_ROOT / cfg["tracks"]["mirror"]).resolve())
     (work / "config" / "config.yaml").write_text(yaml.safe_dump(cfg))
-    runs = [f"results/runs/truth/truth/truth/pid/eta{eta}/seed{seed}/metrics.json"
+    runs = [f"results/runs/truth/rep0/truth/truth/pid/eta{eta}/seed{seed}/metrics.json"
             for eta in ("0", "1", "2") for seed in range(3)]  # fmt: skip
     command = ["snakemake", "-s", str(REPO_ROOT / "Snakefile"), "--cores", "2", "-d", str(work),
                *runs]  # fmt: skip

@@ -146,8 +146,8 @@ def test_smoke_config_builds_the_model_tables(tmp_path: Path) -> None:
     work = _workdir(tmp_path)
     shutil.copy(REPO_ROOT / "config" / "smoke.yaml", work / "config" / "smoke.yaml")
     targets = [
-        "results/tables/table01_model_complexity.csv",
-        "results/tables/table04_openloop_rmse.csv",
+        "results/tables/rep0/table01_model_complexity.csv",
+        "results/tables/rep0/table04_openloop_rmse.csv",
     ]
     result = _snakemake(
         "--cores", "2", "-d", str(work), *targets, "--configfile", "config/smoke.yaml"
@@ -197,13 +197,15 @@ def test_the_setup_notebook_shows_the_figure_and_tables_it_saves(tmp_path: Path)
 
 @pytest.fixture(scope="module")
 def smoke_study(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The whole workflow on the smoke slice, from nothing, once for the slow tests below."""
+    """The whole workflow on the smoke slice, from nothing, once for the slow tests below: the
+    default target and the `replicates` target (two training replicates)."""
     work = _workdir(tmp_path_factory.mktemp("smoke"))
     shutil.copy(REPO_ROOT / "config" / "smoke.yaml", work / "config" / "smoke.yaml")
-    # about 4 minutes on 2 idle cores; the timeout only guards against a hang
+    # about 5 minutes on 2 idle cores; the timeout only guards against a hang
     result = _snakemake(
-        "--cores", "2", "-d", str(work), "--configfile", "config/smoke.yaml", timeout=1800
-    )
+        "--cores", "2", "-d", str(work), "all", "replicates", "--configfile", "config/smoke.yaml",
+        timeout=1800,
+    )  # fmt: skip
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     return work
 
@@ -222,13 +224,30 @@ def test_the_smoke_study_builds_every_table_figure_and_notebook(smoke_study: Pat
     # × nominal NMPC × η 0; truth (PID + 2 NMPCs × 2 internal models) × 2 η
     expected = 3 * 5 * 2 + 3 * 2 * 2 + 3 * 3 * 1 * 1 + (1 + 2 * 2) * 2
     assert len(runs) == expected == 61 and runs["seed"].eq(0).all()
+    assert runs["replicate"].eq(0).all()  # the default target's study: replicate 0
+    # the replicates' scope adds the paper's study for replicate 1 (3 plants × 5 × 2 η)
+    every = pd.read_parquet(work / "results/replicates/study/runs.parquet")
+    assert len(every) == expected + 30
+    learned = every.query("study == 'learned'")
+    assert learned.groupby("replicate").size().to_dict() == {0: 30, 1: 30}
+    assert every.query("study != 'learned'")["replicate"].eq(0).all()
     # the ablation's diagonal (internal = plant: 3 runs) is the learned study's, computed once
-    assert len(list((work / "results/runs").rglob("metrics.json"))) == expected - 3
+    assert len(list((work / "results/runs").rglob("metrics.json"))) == expected - 3 + 30
+    table8 = pd.read_csv(work / "results/replicates/tables/table08_scorecard.csv")
+    assert {"verdict rep0", "verdict rep1", "verdict", "verdict trained", "why"} <= set(table8)
+    assert set(table8["verdict"]) <= {"holds", "contradicted", "inconclusive"}
+    glance = (work / "results/replicates/RESULTS.md").read_text()
+    assert glance.index("## Holds in every replicate") < glance.index("## Runs")
+    over = pd.read_csv(work / "results/replicates/tables/table04_replicates.csv")
+    assert over["replicates"].eq(2).all() and "test_rmse_omega_sd" in over
+    assert (work / "results/replicates/figures/fig13_claim_effects.png").stat().st_size > 10_000
+    assert (work / "results/replicates/notebooks/scorecard.html").stat().st_size > 10_000
+    assert (work / "results/models/rep1/epm/network.npz").is_file()
     assert "# CAPE results at a glance" in (work / "results/RESULTS.md").read_text()
     assert set(runs["eta_label"]) == {"0", "1"}
     figures = sorted((work / "results/figures").rglob("fig*.png"))
     numbers = {p.name[3:5] for p in figures}
-    assert numbers == {f"{n:02d}" for n in range(1, 13)}, numbers
+    assert numbers == {f"{n:02d}" for n in range(1, 14)}, numbers
     assert all(p.stat().st_size > 10_000 for p in figures)
     tables = {p.name[5:7] for p in (work / "results/tables").rglob("table*.md")}
     assert tables == {f"{n:02d}" for n in range(1, 9)}, tables
@@ -237,7 +256,7 @@ def test_the_smoke_study_builds_every_table_figure_and_notebook(smoke_study: Pat
         assert (work / "results/notebooks" / f"{name}.ipynb").is_file()
         assert (work / "results/notebooks" / f"{name}.html").stat().st_size > 10_000
     scorecard = pd.read_csv(work / "results/tables/table08_scorecard.csv")
-    assert {"paper", "ours", "ci95", "holds"} <= set(scorecard.columns)
+    assert {"paper", "ours", "ci95_low", "ci95_high", "verdict rep0", "verdict"} <= set(scorecard)
 
 
 def _smoke_notebooks(work: Path) -> dict[str, tuple[Path, tuple[str, ...]]]:
@@ -322,7 +341,7 @@ def test_a_damaged_run_stops_what_reads_it_and_is_recomputed_once_deleted(
     deleting the folder, as the message says, and rerunning recomputes the run and draws it."""
     work = tmp_path / "copy"
     shutil.copytree(smoke_study, work, symlinks=True)
-    folder = work / "results/runs/learned/epm/epm/pid/eta0/seed0"
+    folder = work / "results/runs/learned/rep0/epm/epm/pid/eta0/seed0"
     series = folder / "timeseries.parquet"
     series.write_bytes(series.read_bytes()[:3000])
     rel_folder, rel_series = folder.relative_to(work), series.relative_to(work)  # as jobs name them

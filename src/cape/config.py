@@ -131,6 +131,16 @@ def _check_grid(config: dict[str, Any], source: str) -> None:
                         f"{source}: field `{where}.{key}` names {name!r}, which the config does "
                         f"not define; use one of {', '.join(known)} (or add it to the config)"
                     )
+    replicates = int(config.get("training", {}).get("replicates", 1))
+    for study, grid in config["study"]["studies"].items():
+        chosen = grid.get("replicates", [0])
+        for r in [] if chosen == "all" else chosen:
+            if r >= replicates:
+                raise CapeError(
+                    f"{source}: field `study.studies.{study}.replicates` names replicate {r}, "
+                    f"but `training.replicates` is {replicates} (replicates 0 … "
+                    f"{replicates - 1}); drop it or raise `training.replicates`"
+                )
     paper = config["study"].get("paper")
     if paper is not None and paper not in config["study"]["studies"]:
         raise CapeError(

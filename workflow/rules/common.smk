@@ -43,10 +43,17 @@ CAPE_ENV = "../envs/cape.yaml"
 TRACK_DIR = config["tracks"]["dir"]
 DATA_TRACKS = sorted(config["data"]["tracks"])
 MODELS = list(config["models"])
+REPLICATES = int(config["training"]["replicates"])  # trained networks of every model (SPEC §4)
 
 
 PLANT_NAMES = ["truth", *MODELS, *(f"{m}-fixed" for m in MODELS)]
 ETAS = config["disturbances"]["eta"]
+
+# Two scopes of the study's summaries: the default target's (`results/`: replicate 0, the
+# single-draw study, ~1 h on two cores) and the `replicates` target's (`results/replicates/`:
+# every training replicate of SPEC §4, about twice that), each with its runs.parquet, table 8,
+# RESULTS.md and scorecard notebook.
+SCOPES = {"results": [0], "results/replicates": list(range(REPLICATES))}
 
 
 wildcard_constraints:
@@ -58,6 +65,8 @@ wildcard_constraints:
     controller="|".join(sorted(config["controllers"])),
     eta=r"[0-9]+(\.[0-9]+)?",
     seed=r"[0-9]+",
+    replicate=r"[0-9]+",
+    scope="|".join(SCOPES),
 
 
 def track_files():
@@ -68,41 +77,54 @@ def track_files():
 def config_json(*sections):
     """Only the named config sections, as JSON for a command's --config-json.
 
-    Passing just what a job reads means editing one section reruns only the jobs that use it.
+    Passing just what a job reads means editing one section reruns only the jobs that use it
+    (the number of training replicates is the grid's, never one job's).
     """
-    return json.dumps({name: config[name] for name in sections}, sort_keys=True)
+    chosen = {name: config[name] for name in sections}
+    if "training" in chosen:
+        chosen["training"] = {k: v for k, v in chosen["training"].items() if k != "replicates"}
+    return json.dumps(chosen, sort_keys=True)
 
 
 PRESENTATION_KEYS = ("label", "color")
 
 
-def model_config_json(model):
-    """What training reads: the model's own entry (less its label and colour), the seed,
-    threads and kernels, the sampling time and the split. Nothing else, so that unrelated config edits
-    never retrain a model."""
+def training_seed(replicate):
+    """Replicate r of every model trains with seed ``training.seed + r`` (SPEC §4)."""
+    return int(config["training"]["seed"]) + int(replicate)
+
+
+def model_config_json(model, replicate):
+    """What training reads: the model's own entry (less its label and colour), the replicate's
+    seed, threads and kernels, the sampling time and the split. Nothing else, so that unrelated
+    config edits never retrain a model (replicate 0's is what a single-draw study passed)."""
     spec = {k: v for k, v in config["models"][model].items() if k not in PRESENTATION_KEYS}
+    training = {k: config["training"][k] for k in ("threads", "fused_adam", "compile")}
     return json.dumps(
         {
             "models": {model: spec},
-            "training": {k: config["training"][k] for k in ("seed", "threads", "fused_adam", "compile")},
+            "training": {**training, "seed": training_seed(replicate)},
             "data": {k: config["data"][k] for k in ("ts", "split")},
         },
         sort_keys=True,
     )
 
 
-def model_dir(model):
-    return f"results/models/{model}"
+def model_dir(model, replicate=0):
+    """The folder of one trained network: a model's training replicate (SPEC §4)."""
+    return f"results/models/rep{replicate}/{model}"
 
 
-def trained_models():
-    """Weights, metadata and loss curve of every configured model."""
-    return [f"{model_dir(m)}/{f}" for m in MODELS for f in ("model.pt", "meta.json", "loss.csv")]
+def trained_models(replicate=0):
+    """Weights, metadata and loss curve of every configured model's replicate."""
+    return [
+        f"{model_dir(m, replicate)}/{f}" for m in MODELS for f in ("model.pt", "meta.json", "loss.csv")
+    ]
 
 
-def model_args():
-    """``--model NAME=DIR`` for every configured model."""
-    return " ".join(f"--model {m}={model_dir(m)}" for m in MODELS)
+def model_args(replicate=0):
+    """``--model NAME=DIR`` for every configured model's replicate."""
+    return " ".join(f"--model {m}={model_dir(m, replicate)}" for m in MODELS)
 
 
 def model_folder_args(input):
@@ -125,17 +147,19 @@ def uses_internal_model(controller):
     return controller_class(controller, config["controllers"][controller]).needs_internal_model
 
 
-def model_inputs(role, name):
-    """The files a plant or internal model ``name`` is read from: its exported network (a
-    learned Φ) or its frozen Φ, and its meta.json; nothing for the ground truth."""
+def model_inputs(role, name, replicate):
+    """The files a plant or internal model ``name`` of training replicate ``replicate`` is read
+    from: its exported network (a learned Φ) or its frozen Φ, and its meta.json; nothing for
+    the ground truth."""
     if name == "truth":
         return {}
     model = name.removesuffix("-fixed")
-    inputs = {f"{role}_meta": f"{model_dir(model)}/meta.json"}
+    folder = model_dir(model, replicate)
+    inputs = {f"{role}_meta": f"{folder}/meta.json"}
     if model == name:
-        inputs[f"{role}_network"] = f"{model_dir(model)}/network.npz"
+        inputs[f"{role}_network"] = f"{folder}/network.npz"
     else:
-        inputs[f"{role}_frozen"] = f"{model_dir(model)}/frozen_phi.json"
+        inputs[f"{role}_frozen"] = f"{folder}/frozen_phi.json"
     return inputs
 
 
@@ -145,20 +169,29 @@ def compiles_solver(controller):
     return uses_internal_model(controller) and bool(settings.get("enabled", False))
 
 
+def solver_path(controller, internal, replicate):
+    """A controller's solver for an internal model of one replicate (the true model's is
+    replicate 0's for every replicate: no trained network enters it)."""
+    replicate = 0 if internal == "truth" else replicate
+    return f"results/solvers/rep{replicate}/{controller}/{internal}.json"
+
+
 def rollout_inputs(wildcards):
-    """What one run reads: the reference line, the plant's and the internal model's files, and
-    the controller's compiled solver for that internal model."""
-    inputs = {"raceline": raceline_path(), **model_inputs("plant", wildcards.plant)}
+    """What one run reads: the reference line, the plant's and the internal model's files of
+    the run's replicate, and the controller's compiled solver for that internal model."""
+    replicate = int(wildcards.replicate)
+    inputs = {"raceline": raceline_path(), **model_inputs("plant", wildcards.plant, replicate)}
     if uses_internal_model(wildcards.controller):
-        inputs.update(model_inputs("internal", wildcards.internal))
+        inputs.update(model_inputs("internal", wildcards.internal, replicate))
     if compiles_solver(wildcards.controller):
-        inputs["solver"] = f"results/solvers/{wildcards.controller}/{wildcards.internal}.json"
+        inputs["solver"] = solver_path(wildcards.controller, wildcards.internal, replicate)
     return inputs
 
 
 def solver_inputs(wildcards):
     """What building a controller's NLP reads: the reference line and the internal model."""
-    return {"raceline": raceline_path(), **model_inputs("internal", wildcards.internal)}
+    internal = model_inputs("internal", wildcards.internal, int(wildcards.replicate))
+    return {"raceline": raceline_path(), **internal}
 
 
 def rollout_config_json(controller):
@@ -172,8 +205,8 @@ def rollout_config_json(controller):
 def grid_runs():
     """Every run of the grid (cape.study.grid), each with the run that computes it (a run asked
     for by two studies, the ablation's diagonal, is computed once)."""
-    check_grid_size(config["study"], ETAS, uses_internal_model, SOURCE)  # before listing them
-    runs = study_runs(config["study"], ETAS, uses_internal_model)
+    check_grid_size(config["study"], ETAS, uses_internal_model, SOURCE, REPLICATES)  # first
+    runs = study_runs(config["study"], ETAS, uses_internal_model, REPLICATES)
     return canonical(runs)
 
 
@@ -183,10 +216,13 @@ RUN_LOG = str(RunId.wildcards().folder("results/logs/runs"))  # the rules' wildc
 RUN_STEM = RunId.wildcards().stem()
 
 
-def aggregate_config_json():
-    """What the aggregation reads: the grid (studies, seeds, η) and which controllers have an
-    internal model, so that it reads every study's runs where they were computed."""
+def aggregate_config_json(replicates):
+    """What the aggregation reads: the grid (studies, seeds, η, the replicates to read) and which
+    controllers have an internal model, so that it reads every study's runs where they were
+    computed."""
     study = dict(config["study"])
+    study["replicates"] = REPLICATES
+    study["read_replicates"] = sorted(replicates)
     study["internal_controllers"] = sorted(c for c in config["controllers"] if uses_internal_model(c))
     # the studies' order decides which folder computes a shared run (cape.study.grid.canonical);
     # sort_keys would reorder the mapping, so the order travels as a list
@@ -194,9 +230,15 @@ def aggregate_config_json():
     return json.dumps({"study": study, "disturbances": {"eta": ETAS}}, sort_keys=True)
 
 
-def rollout_targets():
-    """metrics.json of every run the grid computes (each once)."""
-    return [f"{run.folder()}/metrics.json" for run in dict.fromkeys(GRID.values())]
+def rollout_targets(replicates=None):
+    """metrics.json of every run the grid computes (each once); ``replicates``: only the runs
+    of these training replicates (the default target's are replicate 0's)."""
+    return [
+        f"{computed.folder()}/metrics.json"
+        for computed in dict.fromkeys(
+            computed for run, computed in GRID.items() if replicates is None or run.replicate in replicates
+        )
+    ]
 
 
 # --- the study's notebooks -------------------------------------------------------------------
@@ -248,7 +290,7 @@ def run_notebook(arguments):
         "(papermill {input.notebook} {output.notebook}.part.ipynb --cwd . --no-progress-bar "
         + arguments
         + " > {log} 2>&1"
-        " && jupyter nbconvert --to html {output.notebook}.part.ipynb --output-dir results/notebooks"
+        " && jupyter nbconvert --to html {output.notebook}.part.ipynb --output-dir $(dirname {output.html})"
         " --output $(basename {output.html} .html)"
         " --HTMLExporter.preprocessors=cape.study.notebook_html.ShortParameters >> {log} 2>&1"
         " && mv {output.notebook}.part.ipynb {output.notebook})"
@@ -259,12 +301,36 @@ def run_notebook(arguments):
 
 
 def example_series(study):
-    """The time series the η = 0 figures draw: every run of ``study`` at η = 0, first seed."""
+    """The time series the η = 0 figures draw: every run of ``study`` at η = 0, first seed,
+    replicate 0 (the study's figures are replicate 0's)."""
     return [
         f"{computed.folder()}/timeseries.parquet"
         for run, computed in GRID.items()
-        if run.study == study and run.eta == "0" and run.seed == 0
+        if run.study == study and run.eta == "0" and run.seed == 0 and run.replicate == 0
     ]
+
+
+def scorecard_inputs(wildcards):
+    """What the scorecard of a scope reads beyond its runs: tables 1 and 4 and the trained
+    models' meta.json and loss.csv of each of the scope's replicates."""
+    replicates = SCOPES[wildcards.scope]
+    return {
+        "complexity": [f"results/tables/rep{r}/table01_model_complexity.csv" for r in replicates],
+        "openloop": [f"results/tables/rep{r}/table04_openloop_rmse.csv" for r in replicates],
+        "models": [path for r in replicates for path in trained_models(r) if not path.endswith(".pt")],
+    }
+
+
+def scorecard_params(wildcards, input):
+    """The scorecard notebook's parameters: where its inputs and outputs are."""
+    return (
+        f"-r runs_path {wildcards.scope}/study/runs.parquet"
+        f" -r complexity_paths {','.join(input.complexity)!s}"
+        f" -r openloop_paths {','.join(input.openloop)!s}"
+        f" -r model_root results/models"
+        f" -r table_dir {wildcards.scope}/tables -r figure_dir {wildcards.scope}/figures"
+        f" -r glance_path {wildcards.scope}/RESULTS.md"
+    )
 
 
 def study_targets():
@@ -282,6 +348,17 @@ def study_targets():
     return targets
 
 
+def replicate_targets():
+    """The `replicates` target: every replicate's models and the paper's study for each, with
+    its scorecard (verdicts per replicate and pooled) under results/replicates/."""
+    if config["study"].get("paper") not in STUDIES:
+        return []
+    return [
+        "results/replicates/tables/table08_scorecard.md",
+        "results/replicates/notebooks/scorecard.html",
+    ]
+
+
 def dataset_path(track):
     return f"results/data/DYN-PP-{track}.npz"
 
@@ -292,8 +369,8 @@ def all_targets():
         "results/figures/tracks_and_data.pdf",
         "results/figures/tracks_and_data.png",
         *(f"{model_dir(m)}/frozen_phi.json" for m in MODELS),
-        "results/tables/table04_openloop_rmse.csv",
-        "results/tables/table01_model_complexity.csv",
+        "results/tables/rep0/table04_openloop_rmse.csv",
+        "results/tables/rep0/table01_model_complexity.csv",
         "results/figures/model_phi_ethzmobil.pdf",
         "results/figures/training_curves.pdf",
         f"results/raceline/{config['reference']['track']}.npz",

@@ -1,15 +1,15 @@
-# The learned models (SPEC §4): one training job per model.
+# The learned models (SPEC §4): one training job per model and training replicate.
 
 
 rule train:
     input:
         data=dataset_path(config["data"]["train_track"]),
     output:
-        weights="results/models/{model}/model.pt",
-        meta="results/models/{model}/meta.json",
-        losses="results/models/{model}/loss.csv",
+        weights="results/models/rep{replicate}/{model}/model.pt",
+        meta="results/models/rep{replicate}/{model}/meta.json",
+        losses="results/models/rep{replicate}/{model}/loss.csv",
     params:
-        cfg=lambda wildcards: model_config_json(wildcards.model),
+        cfg=lambda wildcards: model_config_json(wildcards.model, int(wildcards.replicate)),
         out=lambda wildcards, output: os.path.dirname(output.weights),
     threads: config["training"]["threads"]
     # the longest training first (EPM's 3000 epochs are the study's critical path), and every
@@ -23,9 +23,9 @@ rule train:
     conda:
         CAPE_ENV
     log:
-        "results/logs/train/{model}.log",
+        "results/logs/train/rep{replicate}/{model}.log",
     benchmark:
-        "results/benchmarks/train/{model}.tsv"
+        "results/benchmarks/train/rep{replicate}/{model}.tsv"
     shell:
         "cape train --model {wildcards.model} --data {input.data} --out {params.out}"
         " --threads {threads} --checkpoint-every {resources.checkpoint_every}"
@@ -34,18 +34,18 @@ rule train:
 
 rule freeze:
     input:
-        weights="results/models/{model}/model.pt",
-        meta="results/models/{model}/meta.json",
+        weights="results/models/rep{replicate}/{model}/model.pt",
+        meta="results/models/rep{replicate}/{model}/meta.json",
         data=dataset_path(config["data"]["train_track"]),
     output:
-        "results/models/{model}/frozen_phi.json",
+        "results/models/rep{replicate}/{model}/frozen_phi.json",
     params:
         cfg=lambda wildcards: config_json("data"),
         folder=lambda wildcards, input: os.path.dirname(input.weights),
     conda:
         CAPE_ENV
     log:
-        "results/logs/freeze/{model}.log",
+        "results/logs/freeze/rep{replicate}/{model}.log",
     shell:
         "cape freeze --model {wildcards.model}={params.folder} --data {input.data} --out {output}"
         " --config-json {params.cfg:q} > {log} 2>&1"
@@ -53,10 +53,10 @@ rule freeze:
 
 rule export_network:
     input:
-        weights="results/models/{model}/model.pt",
-        meta="results/models/{model}/meta.json",
+        weights="results/models/rep{replicate}/{model}/model.pt",
+        meta="results/models/rep{replicate}/{model}/meta.json",
     output:
-        "results/models/{model}/network.npz",
+        "results/models/rep{replicate}/{model}/network.npz",
     localrule: True
     params:
         folder=lambda wildcards, input: os.path.dirname(input.weights),
@@ -64,7 +64,7 @@ rule export_network:
     conda:
         CAPE_ENV
     log:
-        "results/logs/export/{model}.log",
+        "results/logs/export/rep{replicate}/{model}.log",
     shell:
         "cape export-network --model {wildcards.model}={params.folder} --out {output}"
         " --config-json {params.cfg:q} > {log} 2>&1"
@@ -72,22 +72,22 @@ rule export_network:
 
 rule openloop_table:
     input:
-        models=trained_models(),
+        models=lambda wildcards: trained_models(int(wildcards.replicate)),
         train=dataset_path(config["data"]["train_track"]),
         test=dataset_path(config["data"]["test_track"]),
     output:
-        csv="results/tables/table04_openloop_rmse.csv",
-        md="results/tables/table04_openloop_rmse.md",
-        tex="results/tables/table04_openloop_rmse.tex",
+        csv="results/tables/rep{replicate}/table04_openloop_rmse.csv",
+        md="results/tables/rep{replicate}/table04_openloop_rmse.md",
+        tex="results/tables/rep{replicate}/table04_openloop_rmse.tex",
     params:
-        models=model_args(),
+        models=lambda wildcards: model_args(int(wildcards.replicate)),
         cfg=lambda wildcards: config_json("data", "training"),
     conda:
         CAPE_ENV
     log:
-        "results/logs/tables/table04_openloop_rmse.log",
+        "results/logs/tables/rep{replicate}/table04_openloop_rmse.log",
     benchmark:
-        "results/benchmarks/tables/table04_openloop_rmse.tsv"
+        "results/benchmarks/tables/rep{replicate}/table04_openloop_rmse.tsv"
     shell:
         "cape openloop {params.models} --train-data {input.train} --test-data {input.test}"
         " --out {output.csv} --out {output.md} --out {output.tex} --config-json {params.cfg:q} > {log} 2>&1"
@@ -95,21 +95,21 @@ rule openloop_table:
 
 rule complexity_table:
     input:
-        models=trained_models(),
+        models=lambda wildcards: trained_models(int(wildcards.replicate)),
         test=dataset_path(config["data"]["test_track"]),
     output:
-        csv="results/tables/table01_model_complexity.csv",
-        md="results/tables/table01_model_complexity.md",
-        tex="results/tables/table01_model_complexity.tex",
+        csv="results/tables/rep{replicate}/table01_model_complexity.csv",
+        md="results/tables/rep{replicate}/table01_model_complexity.md",
+        tex="results/tables/rep{replicate}/table01_model_complexity.tex",
     params:
-        models=model_args(),
+        models=lambda wildcards: model_args(int(wildcards.replicate)),
         cfg=lambda wildcards: config_json("training"),
     conda:
         CAPE_ENV
     log:
-        "results/logs/tables/table01_model_complexity.log",
+        "results/logs/tables/rep{replicate}/table01_model_complexity.log",
     benchmark:
-        "results/benchmarks/tables/table01_model_complexity.tsv"
+        "results/benchmarks/tables/rep{replicate}/table01_model_complexity.tsv"
     shell:
         "cape complexity {params.models} --data {input.test}"
         " --out {output.csv} --out {output.md} --out {output.tex} --config-json {params.cfg:q} > {log} 2>&1"

@@ -5,16 +5,16 @@ rule solver:
     input:
         unpack(solver_inputs),
     output:
-        "results/solvers/{controller}/{internal}.json",
+        "results/solvers/rep{replicate}/{controller}/{internal}.json",
     params:
         cfg=lambda wildcards: rollout_config_json(wildcards.controller),
         models=lambda wildcards, input: model_folder_args(input),
     conda:
         CAPE_ENV
     log:
-        "results/logs/solvers/{controller}/{internal}.log",
+        "results/logs/solvers/rep{replicate}/{controller}/{internal}.log",
     benchmark:
-        "results/benchmarks/solvers/{controller}/{internal}.tsv"
+        "results/benchmarks/solvers/rep{replicate}/{controller}/{internal}.tsv"
     shell:
         "cape build-solver --controller {wildcards.controller} --internal {wildcards.internal}"
         " --raceline {input.raceline} --out {output} {params.models} --config-json {params.cfg:q} > {log} 2>&1"
@@ -40,14 +40,15 @@ rule rollout:
     shell:
         "cape rollout --study {wildcards.study} --plant {wildcards.plant}"
         " --controller {wildcards.controller} --internal {wildcards.internal}"
-        " --eta {wildcards.eta} --seed {wildcards.seed} --out {params.out} {params.models}"
+        " --eta {wildcards.eta} --seed {wildcards.seed} --replicate {wildcards.replicate}"
+        " --out {params.out} {params.models}"
         " --raceline {input.raceline} --config-json {params.cfg:q} > {log} 2>&1"
 
 
 rule rollouts:
-    """Every closed-loop run of the grid (a named target)."""
+    """Every closed-loop run of the default target (replicate 0; a named target)."""
     input:
-        rollout_targets(),
+        rollout_targets({0}),
     localrule: True
 
 

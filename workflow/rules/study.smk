@@ -6,21 +6,22 @@
 
 
 rule aggregate:
-    """Every run's metrics in results/study/runs.parquet; per-cell means, CIs and success rates
-    in results/study/summary.parquet."""
+    """Every run's metrics of a scope in <scope>/study/runs.parquet; per-cell means, CIs and
+    success rates in <scope>/study/summary.parquet (results/: replicate 0; results/replicates/:
+    every training replicate)."""
     input:
-        rollout_targets(),
+        lambda wildcards: rollout_targets(set(SCOPES[wildcards.scope])),
     output:
-        runs="results/study/runs.parquet",
-        summary="results/study/summary.parquet",
+        runs="{scope}/study/runs.parquet",
+        summary="{scope}/study/summary.parquet",
     params:
-        cfg=lambda wildcards: aggregate_config_json(),
+        cfg=lambda wildcards: aggregate_config_json(SCOPES[wildcards.scope]),
     conda:
         CAPE_ENV
     log:
-        "results/logs/study/aggregate.log",
+        "{scope}/logs/study/aggregate.log",
     benchmark:
-        "results/benchmarks/study/aggregate.tsv"
+        "{scope}/benchmarks/study/aggregate.tsv"
     shell:
         "cape aggregate --out {output.runs} --summary {output.summary}"
         " --config-json {params.cfg:q} > {log} 2>&1"
@@ -161,34 +162,46 @@ rule notebook_failures:
 
 
 rule notebook_scorecard:
-    """Table 8: the paper's headline claims beside ours (from the config's paper study)."""
+    """Table 8 of a scope: the paper's headline claims beside ours, with three-valued verdicts
+    per training replicate and pooled (from the config's paper study), the claims' effects
+    figure, tables 4 and 1 over the replicates, and RESULTS.md."""
     input:
+        unpack(scorecard_inputs),
         notebook=f"{NOTEBOOKS}/scorecard.ipynb",
-        runs="results/study/runs.parquet",
+        runs="{scope}/study/runs.parquet",
         summary="results/study/summary.parquet",
-        complexity="results/tables/table01_model_complexity.csv",
-        openloop="results/tables/table04_openloop_rmse.csv",
+        raceline=raceline_path(),
     output:
-        report(
-            "results/tables/table08_scorecard.md", caption="../report/scorecard.rst", category="Claims"
-        ),
-        multiext("results/tables/table08_scorecard", ".csv", ".tex"),
-        report("results/RESULTS.md", caption="../report/glance.rst", category="Claims"),
-        notebook="results/notebooks/scorecard.ipynb",
-        html="results/notebooks/scorecard.html",
+        report("{scope}/tables/table08_scorecard.md", caption="../report/scorecard.rst", category="Claims"),
+        multiext("{scope}/tables/table08_scorecard", ".csv", ".tex"),
+        *(f"{{scope}}/tables/{name}{ext}" for name in ("table04_replicates", "table01_replicates") for ext in TABLE_EXTS),
+        *reported_figures("scorecard", "{scope}/figures", "../report/scorecard.rst", "Claims"),
+        figures("scorecard", "{scope}/figures", ".pdf"),
+        report("{scope}/RESULTS.md", caption="../report/glance.rst", category="Claims"),
+        notebook="{scope}/notebooks/scorecard.ipynb",
+        html="{scope}/notebooks/scorecard.html",
     params:
-        cfg=lambda wildcards: config_json("controllers", "models", "study"),
+        cfg=lambda wildcards: config_json("tracks", "data", "reference", "controllers", "models", "study", "training"),
+        paths=scorecard_params,
     conda:
         CAPE_ENV
     log:
-        "results/logs/notebooks/scorecard.log",
+        "{scope}/logs/notebooks/scorecard.log",
     localrule: True
     shell:
-        run_notebook("-r config_json {params.cfg:q}")
+        run_notebook("-r config_json {params.cfg:q} {params.paths}")
 
 
 rule study:
     """Every table, figure and executed notebook of the study (a named target)."""
     input:
         study_targets(),
+    localrule: True
+
+
+rule replicates:
+    """The paper's study for every training replicate (SPEC §4, §8) and its scorecard under
+    results/replicates/ (a named target, outside the default: about as long again as it)."""
+    input:
+        replicate_targets(),
     localrule: True

@@ -79,7 +79,7 @@ def _add_model_folders(parser: argparse.ArgumentParser) -> None:
         help="folder of a trained model this run reads (repeat; default: MODELS_DIR/NAME)",
     )
     parser.add_argument(
-        "--models-dir", default="results/models", help="folder of the trained models' folders"
+        "--models-dir", default="results/models/rep0", help="folder of the trained models' folders"
     )
 
 
@@ -90,7 +90,7 @@ def _model_folders(args: argparse.Namespace) -> Any:
     for item in args.model:
         name, sep, folder = item.partition("=")
         if not sep or not name or not folder:
-            raise CapeError(f"--model {item}: expected NAME=DIR, e.g. epm=results/models/epm")
+            raise CapeError(f"--model {item}: expected NAME=DIR, e.g. epm=results/models/rep0/epm")
         named[name] = Path(folder)
     return ModelFolders(Path(args.models_dir), named)
 
@@ -127,6 +127,8 @@ def _load_models(items: list[str]) -> dict[str, Any]:
     for item in items:
         name, sep, folder = item.partition("=")
         if not sep:
-            raise CapeError(f"--model {item}: expected NAME=FOLDER, e.g. epm=results/models/epm")
+            raise CapeError(
+                f"--model {item}: expected NAME=FOLDER, e.g. epm=results/models/rep0/epm"
+            )
         models[name] = load_model(folder, expected_name=name)
     return models

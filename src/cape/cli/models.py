@@ -252,7 +252,9 @@ def cmd_export_network(args: argparse.Namespace) -> None:
 
     name, sep, folder = args.model.partition("=")
     if not sep:
-        raise CapeError(f"--model {args.model}: expected NAME=FOLDER, e.g. epm=results/models/epm")
+        raise CapeError(
+            f"--model {args.model}: expected NAME=FOLDER, e.g. epm=results/models/rep0/epm"
+        )
     out = export_network(folder, args.out, expected_name=name)
     print(f"wrote {out}: the {name} network for the closed loop")
     compile_settings = _config(args).get("rollout", {}).get("compile")

@@ -90,6 +90,12 @@ def _rollout_arguments(p: argparse.ArgumentParser) -> None:
     _add_model_folders(p)
     p.add_argument("--raceline", help="reference .npz (default: results/raceline/<track>.npz)")
     p.add_argument("--study", default="adhoc", help="the study the run belongs to (metrics.json)")
+    p.add_argument(
+        "--replicate",
+        default=0,
+        type=int,
+        help="the training replicate of the models given by --model (metrics.json; SPEC §4)",
+    )
     _add_config_args(p)
 
 
@@ -118,6 +124,8 @@ def cmd_rollout(args: argparse.Namespace) -> None:
     eta = check_eta(args.eta, "--eta")
     if args.seed < 0:
         raise CapeError(f"--seed {args.seed}: a seed is a non-negative integer")
+    if args.replicate < 0:
+        raise CapeError(f"--replicate {args.replicate}: a replicate is a non-negative integer")
     check_name(args.study, "--study")
     out = Path(args.out)
     check_replaceable(out, RUN_FILES, RUN_WHAT)  # before the lap, not after it
@@ -143,6 +151,7 @@ def cmd_rollout(args: argparse.Namespace) -> None:
         "internal": run.internal,
         "eta": args.eta,
         "seed": args.seed,
+        "replicate": args.replicate,
         **result.metrics,
     }
     ms = np.sort(result.solve_ms)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 from cape.cli.common import (
     _add_config_args,
@@ -31,13 +32,13 @@ def _aggregate_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_aggregate(args: argparse.Namespace) -> None:
     from cape.io import write_files
     from cape.study.aggregate import collect_runs, summarise
-    from cape.study.grid import RunId, canonical, study_runs
+    from cape.study.grid import canonical, study_runs
 
     config = _config(args)
     paths = [Path(p) for p in args.runs]
     if args.runs_from:
         paths += [Path(line) for line in Path(args.runs_from).read_text().split() if line]
-    pairs: list[tuple[str | None, Path] | tuple[str | None, Path, RunId]]
+    pairs: list[tuple[Any, ...]]
     if paths:  # the runs named, each of the study its metrics.json records
         pairs = [(None, p) for p in paths]
     else:  # every run of the config's grid, read where it was computed
@@ -46,9 +47,12 @@ def cmd_aggregate(args: argparse.Namespace) -> None:
         if "order" in study:  # the workflow's order (its JSON has sorted keys): see canonical
             study["studies"] = {name: study["studies"][name] for name in study["order"]}
         grid = canonical(study_runs(study, config["disturbances"]["eta"],
-                                    lambda c: c in internal))  # fmt: skip
-        pairs = [(run.study, computed.folder(args.root) / "metrics.json", computed)
-                 for run, computed in grid.items()]  # fmt: skip
+                                    lambda c: c in internal,
+                                    int(study.get("replicates", 1))))  # fmt: skip
+        read = study.get("read_replicates")  # the workflow's: one scope's replicates
+        pairs = [(run.study, computed.folder(args.root) / "metrics.json", computed, run.replicate)
+                 for run, computed in grid.items()
+                 if read is None or run.replicate in read]  # fmt: skip
     runs = collect_runs(pairs, config["study"]["studies"])
     summary = summarise(runs)
     # both tables or neither: a new runs.parquet never stands beside an old summary

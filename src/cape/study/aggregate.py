@@ -1,10 +1,11 @@
 """Every run's metrics in one tidy table (``runs.parquet``), and summaries over seeds.
 
-A run is identified by (study, plant, internal, controller, eta, seed) (``cape.study.grid.RunId``,
-which also names its folder); its ``metrics.json`` records them all, and ``timing.json`` beside
-it the solve times. Summaries group the seeds of one cell: the mean of a metric with its 95 %
-confidence interval (Student's t over the seeds), the success rate, and the failure-penalised
-means of SPEC §5.3 (a failed run counts with the penalty values).
+A run is identified by (study, replicate, plant, internal, controller, eta, seed)
+(``cape.study.grid.RunId``, which also names its folder); its ``metrics.json`` records them all,
+and ``timing.json`` beside it the solve times. Summaries group the seeds of one cell (of one
+training replicate): the mean of a metric with its 95 % confidence interval (Student's t over
+the seeds), the success rate, and the failure-penalised means of SPEC §5.3 (a failed run
+counts with the penalty values).
 
 With five seeds and a cell that half laps and half fails, the t-interval of a penalised mean is
 wide enough to cross values no run can take (a negative lap time). Beside the half-width
@@ -30,8 +31,8 @@ from cape.integrity import KEY
 from cape.study.grid import RunId
 from cape.study.record import read_metrics, read_timing, verify_series
 
-KEYS = ["study", "plant", "internal", "controller", "eta", "seed"]
-CELL = ["study", "model", "plant", "internal", "controller", "eta", "eta_label"]
+KEYS = ["study", "replicate", "plant", "internal", "controller", "eta", "seed"]
+CELL = ["study", "replicate", "model", "plant", "internal", "controller", "eta", "eta_label"]
 METRICS = [
     "lap_time",
     "lap_time_penalised",
@@ -50,12 +51,19 @@ METRICS = [
 ]
 
 
-def read_run(metrics_path: Path, study: str | None = None, expected: RunId | None = None) -> dict:
+def read_run(
+    metrics_path: Path,
+    study: str | None = None,
+    expected: RunId | None = None,
+    replicate: int | None = None,
+) -> dict:
     """One row of ``study`` (default: the study the run's metrics.json records): the run's
     metrics and its timing (a run shared by two studies is read once per study). The run's
     files are checked first (``cape.study.record``): its metrics against their schema, their
     checksum and the run ``expected`` (default: the one the folder names), its timing against
-    its checksum, its series against the digest the timing recorded."""
+    its checksum, its series against the digest the timing recorded. ``replicate``: the
+    replicate of the study that asks (a run with no trained model is computed once, for
+    replicate 0, and read for every replicate)."""
     metrics = read_metrics(metrics_path, expected)
     folder = metrics_path.parent
     timing = read_timing(folder)
@@ -63,20 +71,22 @@ def read_run(metrics_path: Path, study: str | None = None, expected: RunId | Non
     timing = {k: v for k, v in timing.items() if k.startswith("solve_ms")}
     kept = {k: v for k, v in metrics.items() if k != KEY}
     row = {**kept, **timing, "study": study or metrics["study"], "folder": str(folder)}
+    if replicate is not None:
+        row["replicate"] = replicate
     row["eta_label"] = str(row["eta"])
     row["eta"] = float(row["eta"])
     return row
 
 
 def collect_runs(
-    runs: Iterable[tuple[str | None, Path] | tuple[str | None, Path, RunId | None]],
+    runs: Iterable[tuple[Any, ...]],
     studies: Mapping[str, Any],
 ) -> pd.DataFrame:
-    """The tidy table of the given runs ((study, metrics.json[, the run it must hold]) tuples;
-    a study of None: the one the run records), sorted by its keys.
+    """The tidy table of the given runs ((study, metrics.json[, the run it must hold[, the
+    replicate that asks]]) tuples; a study of None: the one the run records), sorted by its keys.
     ``model`` names the model a run is about: the internal model in a study that varies it (the
     ground-truth study), else the plant's; ``studies`` is the config's ``study.studies``."""
-    rows = [read_run(Path(run[1]), run[0], run[2] if len(run) > 2 else None) for run in runs]
+    rows = [read_run(Path(run[1]), run[0], *run[2:]) for run in runs]
     if not rows:
         raise CapeError("no runs to aggregate")
     frame = pd.DataFrame(rows)

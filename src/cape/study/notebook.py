@@ -52,7 +52,8 @@ def run_dir(root: str | Path, row: Mapping[str, Any]) -> Path:
     if "folder" in row and isinstance(row["folder"], str):
         return Path(row["folder"])
     run = RunId(str(row["study"]), str(row["plant"]), str(row["internal"]),
-                str(row["controller"]), str(row["eta_label"]), int(row["seed"]))  # fmt: skip
+                str(row["controller"]), str(row["eta_label"]), int(row["seed"]),
+                int(row.get("replicate", 0)))  # fmt: skip
     return run.folder(root)
 
 

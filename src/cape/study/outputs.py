@@ -72,7 +72,15 @@ WHOLE_STUDY_NOTEBOOKS: dict[str, NotebookOutputs] = {
         figures={"fig01_block_diagram": "the closed loop of every run"},
         tables=("table02_controller_parameters", "table03_uncertainty_activation"),
     ),
-    "scorecard": NotebookOutputs(tables=("table08_scorecard",)),
+    "scorecard": NotebookOutputs(
+        figures={
+            "fig13_claim_effects": (
+                "each closed-loop claim's effect per training replicate and pooled, with its "
+                "95 % interval, beside the paper's"
+            )
+        },
+        tables=("table08_scorecard", "table04_replicates", "table01_replicates"),
+    ),
 }
 """Notebooks of the whole study (their outputs directly under results/figures, results/tables)."""
 

@@ -119,6 +119,7 @@ def read_metrics(path: Path, expected: RunId | None = None) -> dict[str, Any]:
             metrics["controller"],
             metrics["eta"],
             metrics["seed"],
+            metrics["replicate"],
         )
         if recorded != expected:
             diff = ", ".join(

@@ -1,108 +1,289 @@
-"""Table 8: the paper's headline claims (SPEC §10) beside CAPE's figures, each with its 95 %
-confidence interval over seeds and whether the paper's direction holds here.
+"""Table 8: the paper's headline claims (SPEC §10) beside CAPE's, each with a three-valued
+verdict per training replicate and pooled over them, and the measured cause of every verdict
+that is not ``holds``.
 
-Every figure is recomputed per seed first (a seed is one replicate of the whole grid), then
-averaged over seeds with a Student-t interval, so the interval describes seed-to-seed spread.
+A claim is tested as pairwise effects (an ordering EPM < DDM < DPM: EPM − DDM, EPM − DPM,
+DDM − DPM; "EPM fewest failures": EPM − DDM, EPM − DPM), one row each. A closed-loop effect is
+measured per (replicate, seed), pairing the models' runs of the same replicate index and
+disturbance seed, and its interval is the two-level bootstrap of ``cape.study.verdicts``. An
+open-loop error or an inference time is one value per replicate (the bootstrap over
+replicates); a parameter count, a size or a FLOP count is the architecture's and exact.
+
+Columns: ``claim``, ``comparison``, ``paper`` (the paper's effect), ``ours`` (our pooled
+estimate, and the two models' values), ``ci95_low``/``ci95_high``, ``replicates``,
+``verdict rep<r>`` per replicate, ``verdict`` (pooled), ``verdict trained`` (pooled over the
+replicates whose trainings did not fail, SPEC §4), ``why``.
 """
 
 from __future__ import annotations
 
 import itertools
-from collections.abc import Mapping
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from cape import paper
-from cape.study.aggregate import mean_ci
+from cape.study.verdicts import (
+    CONTRADICTED,
+    HOLDS,
+    INCONCLUSIVE,
+    VERDICTS,
+    combine,
+    exact_verdict,
+    interval,
+    verdict,
+)
 
 NMPCS = ("nmpc", "anmpc", "rnmpc")
 
+SPANS = "_spans"
+"""A closed-loop row's intervals (per replicate and pooled), kept for figure 13."""
 
-def _row(claim: str, item: str, paper_value: float | str, values: np.ndarray | None,
-         direction: str, holds: bool | None, ours: str | None = None) -> dict:  # fmt: skip
-    if values is not None:
-        mean, half, n = mean_ci(list(values))
-        shown = f"{mean:.3g}" if ours is None else ours
+Effects = dict[int, list[float]]
+"""Replicate → the effect's values (one per seed, or one for the replicate)."""
+
+
+@dataclass
+class Context:
+    """What the ``why`` column draws on, all measured: the reference's ideal lap time, the
+    trainings that failed (replicate → model → reason), the open-loop tables per replicate."""
+
+    ideal_lap_time: float | None = None
+    failed: Mapping[int, Mapping[str, str]] = field(default_factory=dict)
+    openloop: Mapping[int, pd.DataFrame] = field(default_factory=dict)
+
+
+def _per(runs: pd.DataFrame, value: pd.Series) -> dict[tuple[str, int], pd.Series]:
+    """(model, replicate) → the value per seed."""
+    frame = runs.assign(_value=value)
+    out = {}
+    for (model, replicate), group in frame.groupby(["model", "replicate"]):
+        out[(str(model), int(replicate))] = group.groupby("seed")["_value"].mean()
+    return out
+
+
+def _pair_effects(
+    per: Mapping[tuple[str, int], pd.Series],
+    a: str,
+    b: str,
+    effect: Callable[[pd.Series, pd.Series], pd.Series],
+) -> Effects:
+    """Replicate → the effect of model ``a`` against ``b`` on their common seeds."""
+    out: Effects = {}
+    for (model, replicate), values in per.items():
+        if model != a or (b, replicate) not in per:
+            continue
+        other = per[(b, replicate)]
+        common = values.index.intersection(other.index)
+        diff = effect(values[common], other[common])
+        out[replicate] = [float(v) for v in diff if math.isfinite(v)]
+    return out
+
+
+def _mean_of(per: Mapping[tuple[str, int], pd.Series], model: str) -> float:
+    values = [float(s.mean()) for (m, _), s in per.items() if m == model]
+    return float(np.mean(values)) if values else math.nan
+
+
+def _verdicts(
+    effects: Effects, paper_sign: float, replicates: Sequence[int], trained: set[int]
+) -> dict[str, Any]:
+    """The interval pooled over every replicate, and the verdicts: per replicate, pooled and
+    pooled over the replicates that trained."""
+    pooled = interval(effects)
+    row: dict[str, Any] = {
+        "ci95_low": pooled.low,
+        "ci95_high": pooled.high,
+        "estimate": pooled.estimate,
+        "replicates": pooled.replicates,
+        SPANS: {"pooled": pooled},
+    }
+    for r in replicates:
+        span = interval({r: effects[r]}) if r in effects else None
+        row[f"verdict rep{r}"] = INCONCLUSIVE if span is None else verdict(span, paper_sign)
+        if span is not None:
+            row[SPANS][f"rep{r}"] = span
+    row["verdict"] = verdict(pooled, paper_sign)
+    kept = {r: v for r, v in effects.items() if r in trained}
+    row["verdict trained"] = verdict(interval(kept), paper_sign) if kept else INCONCLUSIVE
+    return row
+
+
+def _trained(context: Context, models: Sequence[str], replicates: Sequence[int]) -> set[int]:
+    """The replicates in which none of ``models`` failed to train."""
+    return {r for r in replicates if not any(m in context.failed.get(r, {}) for m in models)}
+
+
+def _failed_note(context: Context, models: Sequence[str]) -> str:
+    """The failed trainings among ``models`` (their reasons are in table 4 and RESULTS.md)."""
+    notes = []
+    for m in models:
+        reps = sorted(r for r, failed in context.failed.items() if m in failed)
+        if reps:
+            notes.append(f"{m.upper()} replicate {', '.join(map(str, reps))}")
+    return f"training failed: {'; '.join(notes)}" if notes else ""
+
+
+def _closed_loop_why(row: Mapping[str, Any], replicates: Sequence[int], extra: str) -> str:
+    """What is measured about a closed-loop row that does not hold: whether the replicates
+    disagree (the draw decides it) or each is within its seeds' spread, and ``extra``."""
+    per = [row.get(f"verdict rep{r}", INCONCLUSIVE) for r in replicates]
+    if row["verdict"] == INCONCLUSIVE:
+        if len(set(per)) > 1:
+            said = ", ".join(f"rep{r} {v}" for r, v in zip(replicates, per, strict=True))
+            cause = f"the training draws disagree ({said})"
+        else:
+            cause = "within the spread of the seeds in every replicate"
     else:
-        mean, half, n, shown = np.nan, np.nan, 0, ours or "–"
+        cause = "not explained"
+    return f"{cause}; {extra}" if extra else cause
+
+
+def _row(
+    claim: str, comparison: str, paper_value: float | str, ours: str, verdicts: Mapping[str, Any]
+) -> dict[str, Any]:
     return {
         "claim": claim,
-        "item": item,
+        "comparison": comparison,
         "paper": paper_value,
-        "ours": shown,
-        "ours_mean": mean,
-        "ci95": half,
-        "seeds": n,
-        "paper's direction": direction,
-        "holds": {True: "yes", False: "no", None: "n/a"}[holds],
+        "ours": ours,
+        **verdicts,
     }
 
 
-def _ordered(values: Mapping[str, float], order: tuple[str, ...]) -> bool:
-    return all(values[a] < values[b] for a, b in itertools.pairwise(order))
+def _sign(x: float) -> float:
+    return float(np.sign(x))
 
 
-def learned_claims(runs: pd.DataFrame) -> list[dict]:
-    """The closed-loop claims on the paper's study (``runs``: its runs, of every seed)."""
+def learned_claims(runs: pd.DataFrame, context: Context | None = None) -> list[dict]:
+    """The closed-loop claims on the paper's study (``runs``: its runs, every replicate and
+    seed; a ``replicate`` column, 0 when absent)."""
+    context = context or Context()
+    if runs.empty:
+        return []
+    runs = runs if "replicate" in runs else runs.assign(replicate=0)
+    replicates = sorted(int(r) for r in runs["replicate"].unique())
     rows: list[dict] = []
-    learned = runs
-    if learned.empty:
-        return rows
+
+    def add(
+        claim: str,
+        a: str,
+        b: str,
+        paper_a: float,
+        paper_b: float,
+        per: Mapping[tuple[str, int], pd.Series],
+        effect,
+        paper_effect: float,
+        unit: str,
+        why: Callable[[str], str],
+    ) -> None:
+        effects = _pair_effects(per, a, b, effect)
+        if not effects:
+            return
+        trained = _trained(context, (a, b), replicates)
+        v = _verdicts(effects, _sign(paper_effect), replicates, trained)
+        values = f"{a.upper()} {_mean_of(per, a):.3g}, {b.upper()} {_mean_of(per, b):.3g}"
+        ours = f"{v['estimate']:.3g}{unit} ({values})"
+        row = _row(
+            claim,
+            f"{a.upper()} − {b.upper()}" if unit != " %" else f"{a.upper()} vs {b.upper()}",
+            f"{paper_effect:.3g}{unit} ({a.upper()} {paper_a:g}, {b.upper()} {paper_b:g})"
+            if unit != " %"
+            else f"{paper_effect:+.3g} %",
+            ours,
+            v,
+        )
+        if row["verdict"] == HOLDS:
+            row["why"] = ""
+        else:
+            notes = [n for n in (why(row["verdict"]), _failed_note(context, (a, b))) if n]
+            row["why"] = _closed_loop_why(row, replicates, "; ".join(notes))
+        row["_paper_effect"] = paper_effect
+        rows.append(row)
+
     # 1. adaptive NMPC, failure-penalised lap time averaged over η
-    adaptive = learned[learned["controller"] == "anmpc"]
-    per_seed = adaptive.groupby(["model", "seed"])["lap_time_penalised"].mean()
-    means = {}
-    for model, value in paper.ADAPTIVE_LAP_TIME.items():
-        if model in per_seed.index.get_level_values(0):
-            seeds = per_seed.loc[model].to_numpy()
-            means[model] = float(np.mean(seeds))
-            rows.append(_row("adaptive NMPC lap time, penalised, mean over η (s)", model.upper(),
-                             value, seeds, "EPM < DDM < DPM", None))  # fmt: skip
-    holds = _ordered(means, ("epm", "ddm", "dpm")) if len(means) == 3 else None
-    for r in rows:
-        r["holds"] = {True: "yes", False: "no", None: "n/a"}[holds]
+    adaptive = runs[runs["controller"] == "anmpc"]
+    per = _per(adaptive, adaptive["lap_time_penalised"])
+    order = ("epm", "ddm", "dpm")
+    for a, b in itertools.combinations(order, 2):
+        pa, pb = paper.ADAPTIVE_LAP_TIME[a], paper.ADAPTIVE_LAP_TIME[b]
+        add(
+            "adaptive NMPC lap time, penalised, mean over η (s): EPM < DDM < DPM",
+            a,
+            b,
+            pa,
+            pb,
+            per,
+            lambda x, y: x - y,
+            pa - pb,
+            " s",
+            lambda v: _lap_time_note(context),
+        )
     # 2. EPM against DPM and DDM at η = 1, averaged over the controllers
-    at1 = learned[learned["eta"] == 1.0]
+    at1 = runs[runs["eta"] == 1.0]
     if not at1.empty:
         for metric, anchors in paper.ETA1_RELATIVE.items():
-            avg = at1.groupby(["model", "seed"])[metric].mean()
+            per = _per(at1, at1[metric])
             for other, value in anchors.items():
-                if "epm" not in avg.index.get_level_values(
-                    0
-                ) or other not in avg.index.get_level_values(0):
-                    continue
-                epm, base = avg.loc["epm"], avg.loc[other]
-                common = epm.index.intersection(base.index)
-                rel = 100 * (epm[common] - base[common]) / base[common]
-                mean = float(np.mean(rel))
-                claim = f"η = 1, EPM vs {other.upper()}: {metric} (%)"
-                rows.append(_row(claim, f"vs {other.upper()}",
-                                 value, rel.to_numpy(), "negative" if value < 0 else "positive",
-                                 bool(np.sign(mean) == np.sign(value))))  # fmt: skip
+                add(
+                    f"η = 1, mean over controllers: {metric} (%)",
+                    "epm",
+                    other,
+                    math.nan,
+                    math.nan,
+                    per,
+                    lambda x, y: 100 * (x - y) / y,
+                    value,
+                    " %",
+                    lambda v: "",
+                )
     # 3. NMPC-family failures over the η grid
-    nmpc = learned[learned["controller"].isin(NMPCS)]
-    fails = (~nmpc["success"]).groupby([nmpc["model"], nmpc["seed"]]).sum()
-    counts = {}
-    # the claim's denominator is the grid's (3 NMPCs × 11 η = 33 per seed), the same for
-    # every model even while a study is still incomplete
+    nmpc = runs[runs["controller"].isin(NMPCS)]
     total = len(nmpc[["controller", "eta"]].drop_duplicates())
-    for model, value in paper.NMPC_FAILURES.items():
-        if model in fails.index.get_level_values(0):
-            seeds = fails.loc[model].to_numpy(dtype=float)
-            counts[model] = float(np.mean(seeds))
-            rows.append(_row(f"NMPC-family failures of {total} runs", model.upper(), value, seeds,
-                             "EPM fewest", None))  # fmt: skip
-    if counts:
-        fewest = min(counts, key=counts.get)
-        holds = counts.get("epm") == counts[fewest] if "epm" in counts else None
-        for r in rows[-len(counts) :]:
-            r["holds"] = {True: "yes", False: "no", None: "n/a"}[holds]
+    per = _fail_counts(nmpc)
+    for other in ("ddm", "dpm"):
+        pa, pb = paper.NMPC_FAILURES["epm"], paper.NMPC_FAILURES[other]
+        add(
+            f"NMPC-family failures of {total} runs: EPM fewest",
+            "epm",
+            other,
+            pa,
+            pb,
+            per,
+            lambda x, y: x - y,
+            pa - pb,
+            "",
+            lambda v: "",
+        )
     return rows
 
 
+def _fail_counts(nmpc: pd.DataFrame) -> dict[tuple[str, int], pd.Series]:
+    """(model, replicate) → failures per seed over the NMPC runs of the η grid."""
+    fails = ~nmpc["success"].astype(bool)
+    out = {}
+    for (model, replicate), group in nmpc.assign(_f=fails).groupby(["model", "replicate"]):
+        out[(str(model), int(replicate))] = group.groupby("seed")["_f"].sum().astype(float)
+    return out
+
+
+def _lap_time_note(context: Context) -> str:
+    """Why our lap times are not the paper's: the reference's own ideal lap."""
+    if context.ideal_lap_time is None:
+        return ""
+    return (
+        f"our laps are bounded by the reference's ideal lap, {context.ideal_lap_time:.2f} s at "
+        "its speed profile; the paper's 5.6–5.8 s lie below it"
+    )
+
+
 def bicycle_claims(best: pd.DataFrame, labels: Mapping[str, str]) -> list[dict]:
-    """The best fixed-parameter bicycle controller per model (table 5 against the paper)."""
+    """The best fixed-parameter bicycle controller per model (table 5 against the paper):
+    replicate 0's bicycle study, a deterministic row (holds or contradicted)."""
     rows = []
     inverse = {v: k for k, v in labels.items()}
     for model, anchor in paper.BEST_BICYCLE.items():
@@ -114,77 +295,288 @@ def bicycle_claims(best: pd.DataFrame, labels: Mapping[str, str]) -> list[dict]:
         same = inverse.get(r["best controller"], r["best controller"]) == anchor["controller"]
         name = labels.get(anchor["controller"], anchor["controller"])
         paper_text = f"{name}, η ≤ {anchor['max_eta']:g}, {anchor['lap_time']:.2f} s"
-        rows.append(_row("best bicycle controller", f"{model.upper()} (fixed)", paper_text, None,
-                         "same controller", same, ours))  # fmt: skip
+        v = HOLDS if same else CONTRADICTED
+        rows.append(
+            _row(
+                "best bicycle controller (replicate 0)",
+                f"{model.upper()} (fixed)",
+                paper_text,
+                ours,
+                {
+                    "replicates": 1,
+                    "verdict rep0": v,
+                    "verdict": v,
+                    "verdict trained": v,
+                    "why": "" if same else "not explained",
+                },
+            )
+        )
     return rows
 
 
-def model_claims(complexity: pd.DataFrame, openloop: pd.DataFrame) -> list[dict]:
-    """Complexity and open-loop error: deterministic figures (one trained model each)."""
+MODEL_ROWS = (
+    # column of table 1 or 4, claim, table, deterministic (the architecture's) or measured
+    ("params_M", "model complexity: parameters (M)", "complexity", True),
+    ("size_MB", "model complexity: size (MB)", "complexity", True),
+    ("flops_M", "model complexity: FLOPs (M)", "complexity", True),
+    ("inference_ms", "model complexity: inference (ms)", "complexity", False),
+    ("test_rmse_vx", "open-loop RMSE vx (ETHZMobil)", "openloop", False),
+    ("test_rmse_vy", "open-loop RMSE vy (ETHZMobil)", "openloop", False),
+    ("test_rmse_omega", "open-loop RMSE ω (ETHZMobil)", "openloop", False),
+)
+
+
+def _paper_model_value(column: str, model: str) -> float:
+    if column.startswith("test_rmse_"):
+        return paper.OPENLOOP_RMSE[model][column.removeprefix("test_rmse_")]
+    return paper.COMPLEXITY[model][column]
+
+
+def model_claims(
+    complexity: Mapping[int, pd.DataFrame],
+    openloop: Mapping[int, pd.DataFrame],
+    context: Context | None = None,
+) -> list[dict]:
+    """Complexity and open-loop error, per pair in the paper's order: parameter counts, sizes
+    and FLOPs are exact; inference times and errors vary over replicates (``complexity`` and
+    ``openloop``: replicate → table 1 or table 4)."""
+    context = context or Context()
     rows = []
-    c = complexity.set_index("model")
-    for col, label in (("params_M", "parameters (M)"), ("size_MB", "size (MB)"),
-                       ("flops_M", "FLOPs (M)"), ("inference_ms", "inference (ms)")):  # fmt: skip
-        paper_order = sorted(paper.COMPLEXITY, key=lambda m: paper.COMPLEXITY[m][col])
-        ours_order = sorted(c.index, key=lambda m: c.loc[m, col])
-        for model in c.index:
-            rows.append(_row(f"model complexity: {label}", model.upper(),
-                             paper.COMPLEXITY[model][col], np.array([c.loc[model, col]]),
-                             "order " + " < ".join(m.upper() for m in paper_order),
-                             ours_order == paper_order))  # fmt: skip
-    o = openloop.set_index("model")
-    for comp in ("vx", "vy", "omega"):
-        paper_order = sorted(paper.OPENLOOP_RMSE, key=lambda m: paper.OPENLOOP_RMSE[m][comp])
-        ours_order = sorted(o.index, key=lambda m: o.loc[m, f"test_rmse_{comp}"])
-        for model in o.index:
-            rows.append(_row(f"open-loop RMSE {comp}", model.upper(),
-                             paper.OPENLOOP_RMSE[model][comp],
-                             np.array([o.loc[model, f"test_rmse_{comp}"]]),
-                             "order " + " < ".join(m.upper() for m in paper_order),
-                             ours_order == paper_order))  # fmt: skip
+    replicates = sorted(set(complexity) | set(openloop))
+    for column, claim, table, exact in MODEL_ROWS:
+        tables = complexity if table == "complexity" else openloop
+        per = {r: t.set_index("model")[column] for r, t in tables.items()}
+        models = [m for m in paper.COMPLEXITY if all(m in p.index for p in per.values())]
+        if not per or len(models) < 2:
+            continue
+        paper_order = sorted(models, key=lambda m: _paper_model_value(column, m))
+        label = f"{claim}: " + " < ".join(m.upper() for m in paper_order)
+        for a, b in itertools.combinations(paper_order, 2):
+            effects = {r: [float(p[a] - p[b])] for r, p in per.items()}
+            mean_a = float(np.mean([p[a] for p in per.values()]))
+            mean_b = float(np.mean([p[b] for p in per.values()]))
+            pa, pb = _paper_model_value(column, a), _paper_model_value(column, b)
+            if exact:
+                value = effects[replicates[0]][0] if replicates else math.nan
+                v = exact_verdict(value, -1.0)
+                verdicts = {
+                    "estimate": value,
+                    "ci95_low": value,
+                    "ci95_high": value,
+                    "replicates": len(per),
+                    "verdict": v,
+                    "verdict trained": v,
+                    **{f"verdict rep{r}": v for r in replicates},
+                }
+            else:
+                trained = _trained(context, (a, b), replicates)
+                verdicts = _verdicts(effects, -1.0, replicates, trained)
+            row = _row(
+                label,
+                f"{a.upper()} − {b.upper()}",
+                f"{pa - pb:.3g} ({a.upper()} {pa:g}, {b.upper()} {pb:g})",
+                f"{verdicts['estimate']:.3g} ({a.upper()} {mean_a:.3g}, {b.upper()} {mean_b:.3g})",
+                verdicts,
+            )
+            row["why"] = "" if row["verdict"] == HOLDS else _model_why(column, a, b, context)
+            rows.append(row)
     return rows
 
 
-def scorecard(runs: pd.DataFrame, best_bicycle: pd.DataFrame, labels: Mapping[str, str],
-              complexity: pd.DataFrame | None = None,
-              openloop: pd.DataFrame | None = None) -> pd.DataFrame:  # fmt: skip
-    rows = learned_claims(runs) + bicycle_claims(best_bicycle, labels)
-    if complexity is not None and openloop is not None:
-        rows += model_claims(complexity, openloop)
-    return pd.DataFrame(rows)
+def _model_why(column: str, a: str, b: str, context: Context) -> str:
+    """The measured cause of a model row that does not hold."""
+    if column == "inference_ms":
+        return (
+            "hardware and implementation: timed on this CPU with CAPE's compiled Φ, one window "
+            "at a time; the paper's times come from another machine"
+        )
+    if column.startswith("test_rmse_"):
+        component = column.removeprefix("test_rmse_")
+        ratios = []
+        for model in (a, b):
+            values = [
+                float(t.set_index("model").loc[model, f"test_rmse_{component}"])
+                / float(t.set_index("model").loc[model, f"val_rmse_{component}"])
+                for t in context.openloop.values()
+                if model in set(t["model"]) and f"val_rmse_{component}" in t
+            ]
+            if values:
+                ratios.append(f"{model.upper()} {np.mean(values):.1f}×")
+        if ratios:
+            return (
+                "ETHZMobil extrapolation: the ETHZMobil error over the ETHZ validation error is "
+                + ", ".join(ratios)
+                + " (ETHZMobil's slip lies outside the training data's, SPEC §4.2)"
+            )
+    return "not explained"
 
 
-def at_a_glance(table: pd.DataFrame, runs: pd.DataFrame) -> str:
-    """A one-page Markdown summary of the study from the scorecard: what ran, how many laps
-    were completed per study, and for each of the paper's claims how many of its rows hold
-    here, then every row. Written by the scorecard notebook to ``results/RESULTS.md``."""
+def evaluate_claims(
+    runs: pd.DataFrame,
+    best_bicycle: pd.DataFrame,
+    labels: Mapping[str, str],
+    complexity: Mapping[int, pd.DataFrame] | pd.DataFrame | None = None,
+    openloop: Mapping[int, pd.DataFrame] | pd.DataFrame | None = None,
+    context: Context | None = None,
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Table 8, every claim's rows (a table 1 or 4 given as one frame is replicate 0's), and
+    the closed-loop rows' effects with their intervals per replicate and pooled (figure 13:
+    claim, comparison, scope, estimate, low, high, paper)."""
+    context = context or Context()
+    if isinstance(complexity, pd.DataFrame):
+        complexity = {0: complexity}
+    if isinstance(openloop, pd.DataFrame):
+        openloop = {0: openloop}
+    if openloop and not context.openloop:
+        context.openloop = openloop
+    closed = learned_claims(runs, context)
+    rows = closed + bicycle_claims(best_bicycle, labels)
+    if complexity and openloop:
+        rows += model_claims(complexity, openloop, context)
+    effects = pd.DataFrame(
+        [
+            {
+                "claim": r["claim"],
+                "comparison": r["comparison"],
+                "scope": scope,
+                "estimate": span.estimate,
+                "low": span.low,
+                "high": span.high,
+                "paper": r["_paper_effect"],
+            }
+            for r in closed
+            for scope, span in r[SPANS].items()
+        ],
+        columns=["claim", "comparison", "scope", "estimate", "low", "high", "paper"],
+    )
+    table = pd.DataFrame([{k: v for k, v in r.items() if not k.startswith("_")} for r in rows])
+    verdict_columns = sorted(c for c in table.columns if c.startswith("verdict rep"))
+    first = ["claim", "comparison", "paper", "ours", "ci95_low", "ci95_high", "replicates"]
+    order = first + verdict_columns + ["verdict", "verdict trained", "why"]
+    for column in order:
+        if column not in table:
+            table[column] = "" if column.startswith("verdict") or column == "why" else math.nan
+    table = table[order]
+    return table.fillna({c: INCONCLUSIVE for c in verdict_columns}), effects
+
+
+def claim_verdicts(table: pd.DataFrame, column: str = "verdict") -> pd.Series:
+    """Per claim, its pairwise rows combined (``cape.study.verdicts.combine``)."""
+    return table.groupby("claim", sort=False)[column].agg(lambda v: combine(list(v)))
+
+
+def counts(table: pd.DataFrame) -> dict[str, int]:
+    """How many rows hold in every replicate, are contradicted in any, are inconclusive pooled."""
+    reps = [c for c in table.columns if c.startswith("verdict rep")]
+    every = table[reps].eq(HOLDS).all(axis=1) if reps else table["verdict"].eq(HOLDS)
+    anywhere = (
+        table[reps].eq(CONTRADICTED).any(axis=1) if reps else table["verdict"].eq(CONTRADICTED)
+    )
+    return {
+        "rows": len(table),
+        "hold in every replicate": int(every.sum()),
+        "contradicted in any replicate": int(anywhere.sum()),
+        "inconclusive pooled": int(table["verdict"].eq(INCONCLUSIVE).sum()),
+        **{f"pooled {v}": int(table["verdict"].eq(v).sum()) for v in VERDICTS},
+    }
+
+
+def at_a_glance(table: pd.DataFrame, runs: pd.DataFrame, health: pd.DataFrame | None = None) -> str:
+    """A one-page Markdown summary, written by the scorecard notebook to ``RESULTS.md``: first
+    the claims that hold in every replicate, those contradicted, those inconclusive; then what
+    ran, the trainings that failed, and every row with its verdicts and cause."""
+    replicates = sorted(int(r) for r in runs["replicate"].unique()) if "replicate" in runs else [0]
     seeds = runs["seed"].nunique() if len(runs) else 0
+    reps = [c for c in table.columns if c.startswith("verdict rep")]
+    every = table[reps].eq(HOLDS).all(axis=1) if reps else table["verdict"].eq(HOLDS)
     lines = [
         "# CAPE results at a glance",
         "",
-        f"Generated by the study from its {len(runs)} closed-loop runs ({seeds} seed(s)) and the "
-        "claims scorecard (table 8, `results/tables/table08_scorecard.md`). Confidence "
-        "intervals are 95 % Student-t intervals over seeds; `holds` says whether the paper's "
-        "direction holds here. Nothing is tuned toward the paper.",
+        f"{len(runs)} closed-loop runs, training replicate(s) {', '.join(map(str, replicates))}, "
+        f"{seeds} seed(s); table 8 (`table08_scorecard.md`). A verdict is `holds` when the 95 % "
+        "interval of the effect lies wholly on the paper's side, `contradicted` when wholly on "
+        "the other, `inconclusive` when it contains zero; pooled intervals resample the "
+        "replicates, then the seeds within each (docs/study.md). Nothing is tuned toward the "
+        "paper.",
         "",
-        "## Runs",
-        "",
-        "| study | runs | laps completed |",
-        "|---|---|---|",
     ]
+    sections = (
+        ("Holds in every replicate", every),
+        ("Contradicted (pooled)", table["verdict"].eq(CONTRADICTED)),
+        ("Inconclusive (pooled)", table["verdict"].eq(INCONCLUSIVE)),
+        ("Holds pooled, not in every replicate", table["verdict"].eq(HOLDS) & ~every),
+    )
+    for title, mask in sections:
+        lines += [f"## {title}: {int(mask.sum())} of {len(table)} rows", ""]
+        for row in table[mask].itertuples(index=False):
+            cause = f" — {row.why}" if row.why else ""
+            lines.append(
+                f"- {row.claim}, {row.comparison}: ours {row.ours}, paper {row.paper}{cause}"
+            )
+        lines.append("")
+    if health is not None and len(health):
+        failed = health[~health["trained"]]
+        lines += ["## Trainings", ""]
+        for model, group in health.groupby("model", sort=False):
+            bad = group[~group["trained"]]
+            lines.append(
+                f"- {model.upper()}: {len(bad)} of {len(group)} replicate(s) failed to train"
+                + "".join(f"; replicate {r.replicate}: {r.reason}" for r in bad.itertuples())
+            )
+        if failed.empty:
+            lines.append("- every replicate trained")
+        lines.append("")
+    lines += ["## Runs", "", "| study | runs | laps completed |", "|---|---|---|"]
     for study, group in runs.groupby("study", sort=False):
         lines.append(f"| {study} | {len(group)} | {group['success'].mean():.0%} |")
-    lines += ["", "## The paper's claims", "", "| claim | rows | direction holds |"]
-    lines.append("|---|---|---|")
-    for claim, group in table.groupby("claim", sort=False):
-        lines.append(f"| {claim} | {len(group)} | {(group['holds'] == 'yes').sum()} |")
-    held = int((table["holds"] == "yes").sum())
-    lines += ["", f"In all: the paper's direction holds for {held} of {len(table)} rows.", ""]
-    lines += ["## Every row", "", "| claim | item | paper | ours | ± 95 % CI | holds |"]
-    lines.append("|---|---|---|---|---|---|")
-    for row in table.itertuples(index=False):
-        ci = "–" if pd.isna(row.ci95) else f"{row.ci95:.3g}"
-        lines.append(
-            f"| {row.claim} | {row.item} | {row.paper} | {row.ours} | {ci} | {row.holds} |"
-        )
+    lines += ["", "## Every row", ""]
+    header = ["claim", "comparison", "paper", "ours", "95 % CI", *reps, "pooled", "trained", "why"]
+    lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for row in table.to_dict("records"):
+        ci = "–" if pd.isna(row["ci95_low"]) else f"[{row['ci95_low']:.3g}, {row['ci95_high']:.3g}]"
+        cells = [
+            row["claim"],
+            row["comparison"],
+            row["paper"],
+            row["ours"],
+            ci,
+            *(row[r] for r in reps),
+            row["verdict"],
+            row["verdict trained"],
+            row["why"] or "",
+        ]
+        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def read_replicate_tables(paths: str | Sequence[str]) -> dict[int, pd.DataFrame]:
+    """Replicate → table, from ``results/tables/rep<r>/<table>.csv`` paths (comma-separated in
+    a notebook's parameter)."""
+    import re
+    from pathlib import Path
+
+    items = paths.split(",") if isinstance(paths, str) else list(paths)
+    tables = {}
+    for item in (p for p in items if p):
+        match = re.fullmatch(r"rep([0-9]+)", Path(item).parent.name)
+        if match is None:
+            raise ValueError(f"{item}: not a replicate's table (…/rep<r>/<table>.csv)")
+        tables[int(match.group(1))] = pd.read_csv(item)
+    return tables
+
+
+def read_trainings(
+    model_root: str, replicates: Sequence[int], models: Sequence[str]
+) -> tuple[dict[tuple[int, str], pd.DataFrame], dict[tuple[int, str], float]]:
+    """(replicate, model) → loss.csv and → meta.json's best validation loss, for the training
+    checks of ``cape.models.health``."""
+    import json
+    from pathlib import Path
+
+    losses, best = {}, {}
+    for r in replicates:
+        for m in models:
+            folder = Path(model_root, f"rep{r}", m)
+            losses[(r, m)] = pd.read_csv(folder / "loss.csv")
+            best[(r, m)] = float(json.loads((folder / "meta.json").read_text())["best_val_loss"])
+    return losses, best

@@ -1,0 +1,124 @@
+"""Did a training work? (SPEC §4: a failed training is a result, not a model.)
+
+A replicate whose training plainly failed is flagged, never dropped: its closed-loop runs stay
+in the study, and verdicts are given over all replicates and over those that trained. Three
+checks, each with its settings in ``training.health``:
+
+- *the bar* (SPEC §4.2, for the models it names: DDM and EPM): one-step RMSE on the ETHZ
+  validation split below ``val_rmse_max`` for every component;
+- *a stalled loss*: the training loss falls by less than ``stall.min_drop`` (relative) after
+  epoch ``stall.after`` (DDM's seed-1 training sat at 0.163 for 398 epochs);
+- *an outlier among replicates*: a best validation loss more than ``outlier_factor`` × the
+  median of the model's replicates (needs three or more replicates).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+STATES = ("vx", "vy", "omega")
+
+
+def training_checks(
+    model: str,
+    val_rmse: Mapping[str, float],
+    train_loss: Sequence[float],
+    settings: Mapping[str, Any],
+) -> list[str]:
+    """The reasons one training failed (none: it trained), from its validation RMSE per
+    component and its training loss per epoch."""
+    reasons = []
+    if model in settings.get("models", ()):
+        bar = settings["val_rmse_max"]
+        above = [f"{s} {val_rmse[s]:.2e} ≥ {bar[s]:g}" for s in STATES if not val_rmse[s] < bar[s]]
+        if above:
+            reasons.append("ETHZ validation RMSE above the bar: " + ", ".join(above))
+    stall = settings.get("stall")
+    if stall and len(train_loss) > int(stall["after"]) + 1:
+        start = int(stall["after"])
+        first = float(train_loss[start - 1])
+        drop = (first - float(np.min(train_loss[start:]))) / first if first > 0 else 0.0
+        if drop < float(stall["min_drop"]):
+            reasons.append(
+                f"training loss stalled: {drop:.1%} lower after epoch {start} than at it "
+                f"({first:.3g})"
+            )
+    return reasons
+
+
+def outliers(best_val_loss: Mapping[int, float], factor: float) -> dict[int, str]:
+    """Replicate → reason, for a best validation loss more than ``factor`` × the replicates'
+    median (three replicates or more)."""
+    if len(best_val_loss) < 3:
+        return {}
+    median = float(np.median(list(best_val_loss.values())))
+    return {
+        r: f"best validation loss {v:.3g} > {factor:g} × the replicates' median {median:.3g}"
+        for r, v in best_val_loss.items()
+        if v > factor * median
+    }
+
+
+def training_health(
+    openloop: Mapping[int, pd.DataFrame],
+    losses: Mapping[tuple[int, str], pd.DataFrame],
+    best_val_loss: Mapping[tuple[int, str], float],
+    settings: Mapping[str, Any],
+) -> pd.DataFrame:
+    """One row per (replicate, model): ``trained`` and the ``reason`` it did not.
+    ``openloop``: replicate → table 4 (its ``val_rmse_*`` columns); ``losses``: (replicate,
+    model) → loss.csv; ``best_val_loss``: (replicate, model) → meta.json's."""
+    rows = []
+    for replicate, table in sorted(openloop.items()):
+        for record in table.to_dict("records"):
+            model = str(record["model"])
+            curve = losses.get((replicate, model))
+            loss = [] if curve is None else curve["train_loss"].tolist()
+            val = {s: float(record[f"val_rmse_{s}"]) for s in STATES}
+            reasons = training_checks(model, val, loss, settings)
+            rows.append({"replicate": replicate, "model": model, "reasons": reasons})
+    frame = pd.DataFrame(rows, columns=["replicate", "model", "reasons"])
+    for model in frame["model"].unique():
+        best = {r: v for (r, m), v in best_val_loss.items() if m == model}
+        for replicate, reason in outliers(best, float(settings["outlier_factor"])).items():
+            mask = (frame["model"] == model) & (frame["replicate"] == replicate)
+            for i in frame.index[mask]:
+                frame.at[i, "reasons"] = [*frame.at[i, "reasons"], reason]
+    frame["trained"] = frame["reasons"].map(lambda r: not r)
+    frame["reason"] = frame["reasons"].map("; ".join)
+    return frame.drop(columns="reasons")
+
+
+def failed_trainings(health: pd.DataFrame) -> dict[int, dict[str, str]]:
+    """Replicate → model → reason, for the trainings that failed."""
+    out: dict[int, dict[str, str]] = {}
+    for row in health[~health["trained"]].itertuples(index=False):
+        out.setdefault(int(row.replicate), {})[str(row.model)] = str(row.reason)
+    return out
+
+
+def over_replicates(
+    tables: Mapping[int, pd.DataFrame], columns: Sequence[str], health: pd.DataFrame | None = None
+) -> pd.DataFrame:
+    """Per model: each column's mean and standard deviation over the replicates' tables (table
+    4's errors, table 1's inference time), and how many replicates failed to train."""
+    frame = pd.concat([t.assign(replicate=r) for r, t in tables.items()], ignore_index=True)
+    rows = []
+    for model, group in frame.groupby("model", sort=False):
+        row: dict[str, Any] = {"model": model, "replicates": len(group)}
+        for column in columns:
+            values = group[column].to_numpy(dtype=float)
+            row[f"{column}_mean"] = float(values.mean())
+            row[f"{column}_sd"] = float(values.std(ddof=1)) if values.size > 1 else float("nan")
+        if health is not None:
+            mine = health[health["model"] == model]
+            row["failed trainings"] = int((~mine["trained"]).sum())
+            row["failed replicates"] = ", ".join(
+                str(r) for r in mine[~mine["trained"]]["replicate"]
+            )
+        rows.append(row)
+    return pd.DataFrame(rows)
