@@ -678,3 +678,47 @@ def test_train_refuses_counts_that_make_no_model(option: list[str], tmp_path: Pa
                  *option])  # fmt: skip
     assert code == 2 and f"{' '.join(option)}: give a number" in capsys.readouterr().err
     assert not (tmp_path / "m").exists()
+
+
+# --- training.kernels: a pin in the config is the environment variable it names -------------
+def test_a_kernel_pin_in_the_config_trains_as_the_environment_variable_does(
+    setup: dict, datasets: dict, tmp_path: Path
+) -> None:
+    """`training.kernels.mkl_cbwr: AVX2` gives the same weights as MKL_CBWR=AVX2 set by hand
+    (the pin reaches MKL, set before PyTorch loads) and is recorded in meta.json; whether it
+    differs from the CPU's own path depends on the CPU, so that is not asserted."""
+    data = tmp_path / "ethz.npz"
+    np.savez(data, **datasets["ETHZ"])
+    cfg = copy.deepcopy(setup["cfg"])
+    cfg["models"]["dpm"]["train"]["batch_size"] = 128
+    plain, pinned = tmp_path / "plain.yaml", tmp_path / "pinned.yaml"
+    plain.write_text(yaml.safe_dump(cfg))
+    cfg["training"]["kernels"] = {"mkl_cbwr": "AVX2"}
+    pinned.write_text(yaml.safe_dump(cfg))
+    env = {k: v for k, v in os.environ.items() if k != "MKL_CBWR"}
+
+    def train(out: str, config: Path, **extra: str) -> dict:
+        args = ["cape", "train", "--model", "dpm", "--data", str(data), "--out",
+                str(tmp_path / out), "--epochs", "2", "--config", str(config)]  # fmt: skip
+        done = subprocess.run(args, capture_output=True, text=True, env={**env, **extra})
+        assert done.returncode == 0, done.stderr
+        return json.loads((tmp_path / out / "meta.json").read_text())
+
+    by_config = train("config", pinned)
+    by_hand = train("hand", plain, MKL_CBWR="AVX2")
+    assert by_config["weights_sha256"] == by_hand["weights_sha256"]
+    assert by_config["kernels"] == {"mkl_cbwr": "AVX2"} and by_hand["kernels"] == {}
+
+
+def test_a_kernel_pin_is_refused_once_pytorch_is_loaded(monkeypatch) -> None:
+    """MKL and ATen read their variables when PyTorch loads: later, a pin would silently not
+    apply, so it is an error naming the key."""
+    import torch  # noqa: F401  (loaded, as in any process that has trained)
+
+    from cape.errors import CapeError
+    from cape.models.kernels import pin_before_torch
+
+    monkeypatch.delenv("MKL_CBWR", raising=False)
+    with pytest.raises(CapeError, match=r"training\.kernels: PyTorch is already loaded"):
+        pin_before_torch({"mkl_cbwr": "AVX2", "aten_capability": None})
+    pin_before_torch({"mkl_cbwr": None})  # nothing pinned: nothing to refuse

@@ -100,6 +100,9 @@ def model_config_json(model, replicate):
     config edits never retrain a model (replicate 0's is what a single-draw study passed)."""
     spec = {k: v for k, v in config["models"][model].items() if k not in PRESENTATION_KEYS}
     training = {k: config["training"][k] for k in ("threads", "fused_adam", "compile")}
+    kernels = {k: v for k, v in config["training"].get("kernels", {}).items() if v is not None}
+    if kernels:  # unset pins change nothing, so they are not part of a training's identity
+        training["kernels"] = kernels
     return json.dumps(
         {
             "models": {model: spec},

@@ -67,9 +67,16 @@ def cmd_train(args: argparse.Namespace) -> None:
     import hashlib
 
     import numpy as np
-    import torch
 
     from cape.config import section
+    from cape.models.kernels import pin_before_torch, pin_inductor, pinned
+
+    config = _config(args)
+    kernels = section(config, "training").get("kernels")
+    pin_before_torch(kernels)  # MKL's and ATen's code paths are read when PyTorch loads
+    import torch
+
+    pin_inductor(kernels)
     from cape.models.checkpoint import save_model
     from cape.models.trained import FORMAT_VERSION
     from cape.models.training import (
@@ -89,7 +96,6 @@ def cmd_train(args: argparse.Namespace) -> None:
     for option, (value, least) in counts.items():
         if value is not None and value < least:
             raise CapeError(f"{option} {value}: give a number of at least {least}")
-    config = _config(args)
     spec = _model_spec(config, args.model)
     _check_model_folder(Path(args.out))  # before the training, not after it
     data_cfg, train_cfg = section(config, "data"), section(config, "training")
@@ -126,6 +132,7 @@ def cmd_train(args: argparse.Namespace) -> None:
         step=TRAINING_STEP,
         torch=torch.__version__,
         format=FORMAT_VERSION,
+        **({"kernels": pinned(kernels)} if pinned(kernels) else {}),
     )
     every = args.checkpoint_every
     every = float(train_cfg.get("checkpoint_every", 60.0) if every is None else every)
@@ -162,6 +169,7 @@ def cmd_train(args: argparse.Namespace) -> None:
         "data_file": str(data_path),
         "data_sha256": data_sha256,
         "torch_version": torch.__version__,
+        "kernels": pinned(kernels),  # empty: the CPU's own code paths
         "resumed_from_epoch": result.resumed_from,
     }
     rows = ["epoch,train_loss,val_loss"] + [

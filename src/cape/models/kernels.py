@@ -1,0 +1,52 @@
+"""Which CPU code paths a training's kernels take (``training.kernels``; docs/models.md).
+
+A training is bit-identical on one machine, but its kernels pick their code path by the CPU:
+MKL dispatches its matrix products by the processor (on this machine's AMD EPYC its default
+path, its AVX2 branch and its SSE2 ``COMPATIBLE`` branch give three different trainings),
+Inductor vectorises the compiled step to the widest vector width the CPU has, and ATen's
+eager kernels likewise. Each can be pinned: MKL by its conditional numerical reproducibility
+(``MKL_CBWR``), ATen by ``ATEN_CPU_CAPABILITY``, Inductor by its ``cpp.simdlen``. Unset, a
+training takes the CPU's own paths (the default: replicate 0's models are those of earlier
+studies). MKL and ATen read their variables when PyTorch loads, so ``pin_before_torch`` runs
+before ``import torch``.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Mapping
+from typing import Any
+
+from cape.errors import CapeError
+
+ENVIRONMENT = {"mkl_cbwr": "MKL_CBWR", "aten_capability": "ATEN_CPU_CAPABILITY"}
+
+
+def pinned(settings: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The pins that are set (what a training's identity records; empty: the CPU's own)."""
+    return {k: v for k, v in (settings or {}).items() if v is not None}
+
+
+def pin_before_torch(settings: Mapping[str, Any] | None) -> None:
+    """Set MKL's and ATen's code paths in the environment; refused once PyTorch is loaded
+    (they would then silently not apply)."""
+    pins = pinned(settings)
+    wanted = {ENVIRONMENT[k]: str(v) for k, v in pins.items() if k in ENVIRONMENT}
+    if not wanted:
+        return
+    if "torch" in sys.modules and any(os.environ.get(k) != v for k, v in wanted.items()):
+        raise CapeError(
+            "training.kernels: PyTorch is already loaded in this process, so "
+            f"{', '.join(wanted)} would not apply; set them before Python starts"
+        )
+    os.environ.update(wanted)
+
+
+def pin_inductor(settings: Mapping[str, Any] | None) -> None:
+    """Inductor's vector width for the compiled training step (``inductor_simdlen``)."""
+    simdlen = pinned(settings).get("inductor_simdlen")
+    if simdlen is not None:
+        import torch._inductor.config as inductor
+
+        inductor.cpp.simdlen = int(simdlen)
