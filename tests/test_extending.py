@@ -96,7 +96,7 @@ def test_a_model_and_a_controller_added_by_config_alone_run_through_the_study(
         (p, c, e) for p in ("mlp", "epm") for c in ("pid", "purepursuit") for e in (0.0, 1.0)
     }
     assert cells == expected
-    assert (work / "results" / "models" / "mlp" / "network.npz").is_file()
+    assert (work / "results" / "models" / "rep0" / "mlp" / "network.npz").is_file()
     for name in ("fig03_tracking_error_sweep", "fig09_trajectories_eta0"):
         assert (work / "results" / "figures" / "extension" / f"{name}.png").stat().st_size > 0
     pure = runs[(runs["controller"] == "purepursuit") & (runs["plant"] == "epm")]
