@@ -288,7 +288,13 @@ def test_every_smoke_notebook_shows_each_figure_it_saves(smoke_study: Path) -> N
         page = _Page((smoke_study / f"results/notebooks/{name}.html").read_text())
         assert shown == saved, name
         assert [_digest(p) for p in page.pngs] == saved, name
-    assert sum(len(figures) for _, figures in notebooks.values()) == 22  # 1 + 2 × 7 + 2 + 1 + 4
+    assert sum(len(figures) for _, figures in notebooks.values()) == 23  # 1 + 2 × 7 + 2 + 1 + 4 + 1
+    # and the replicates' scorecard, from its own folder
+    scope = smoke_study / "results" / "replicates"
+    saved = [
+        _digest((scope / "figures" / f"{f}.png").read_bytes()) for f in notebooks["scorecard"][1]
+    ]
+    assert [_digest(p) for p in _shown_pngs(scope / "notebooks" / "scorecard.ipynb")] == saved
 
 
 @pytest.mark.slow
