@@ -165,3 +165,16 @@ def test_the_papers_study_runs_for_every_replicate_and_the_others_for_replicate_
     folder = learned_internal.folder("results/runs")
     assert str(folder) == "results/runs/truth/rep1/truth/epm/nmpc/eta0/seed1"
     assert RunId.parse(folder / "metrics.json") == learned_internal
+
+
+def test_a_row_of_replicate_0_alone_holds_everywhere_it_was_measured() -> None:
+    from cape.study.scorecard import counts
+
+    table = pd.DataFrame(
+        {
+            "verdict rep0": [HOLDS, HOLDS, HOLDS],
+            "verdict rep1": ["n/a", INCONCLUSIVE, HOLDS],
+            "verdict": [HOLDS, HOLDS, HOLDS],
+        }
+    )
+    assert counts(table)["hold in every replicate"] == 2  # the first and the last

@@ -40,6 +40,9 @@ from cape.study.verdicts import (
 
 NMPCS = ("nmpc", "anmpc", "rnmpc")
 
+NOT_RUN = "n/a"
+"""A replicate's verdict on a row measured in replicate 0 only (the bicycle study)."""
+
 SPANS = "_spans"
 """A closed-loop row's intervals (per replicate and pooled), kept for figure 13."""
 
@@ -457,7 +460,8 @@ def evaluate_claims(
         if column not in table:
             table[column] = "" if column.startswith("verdict") or column == "why" else math.nan
     table = table[order]
-    return table.fillna({c: INCONCLUSIVE for c in verdict_columns}), effects
+    # a row about replicate 0 alone (the bicycle study's) has no verdict in the others
+    return table.fillna({c: NOT_RUN for c in verdict_columns}), effects
 
 
 def claim_verdicts(table: pd.DataFrame, column: str = "verdict") -> pd.Series:
@@ -465,10 +469,19 @@ def claim_verdicts(table: pd.DataFrame, column: str = "verdict") -> pd.Series:
     return table.groupby("claim", sort=False)[column].agg(lambda v: combine(list(v)))
 
 
+def holds_everywhere(table: pd.DataFrame) -> pd.Series:
+    """Rows that hold in every replicate they were measured in (``n/a`` elsewhere)."""
+    reps = [c for c in table.columns if c.startswith("verdict rep")]
+    if not reps:
+        return table["verdict"].eq(HOLDS)
+    verdicts = table[reps]
+    return verdicts.isin([HOLDS, NOT_RUN]).all(axis=1) & verdicts.eq(HOLDS).any(axis=1)
+
+
 def counts(table: pd.DataFrame) -> dict[str, int]:
     """How many rows hold in every replicate, are contradicted in any, are inconclusive pooled."""
     reps = [c for c in table.columns if c.startswith("verdict rep")]
-    every = table[reps].eq(HOLDS).all(axis=1) if reps else table["verdict"].eq(HOLDS)
+    every = holds_everywhere(table)
     anywhere = (
         table[reps].eq(CONTRADICTED).any(axis=1) if reps else table["verdict"].eq(CONTRADICTED)
     )
@@ -488,7 +501,7 @@ def at_a_glance(table: pd.DataFrame, runs: pd.DataFrame, health: pd.DataFrame | 
     replicates = sorted(int(r) for r in runs["replicate"].unique()) if "replicate" in runs else [0]
     seeds = runs["seed"].nunique() if len(runs) else 0
     reps = [c for c in table.columns if c.startswith("verdict rep")]
-    every = table[reps].eq(HOLDS).all(axis=1) if reps else table["verdict"].eq(HOLDS)
+    every = holds_everywhere(table)
     lines = [
         "# CAPE results at a glance",
         "",
