@@ -173,7 +173,7 @@ def test_a_row_of_replicate_0_alone_holds_everywhere_it_was_measured() -> None:
     table = pd.DataFrame(
         {
             "verdict rep0": [HOLDS, HOLDS, HOLDS],
-            "verdict rep1": ["n/a", INCONCLUSIVE, HOLDS],
+            "verdict rep1": ["not run", INCONCLUSIVE, HOLDS],
             "verdict": [HOLDS, HOLDS, HOLDS],
         }
     )

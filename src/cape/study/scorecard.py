@@ -40,7 +40,7 @@ from cape.study.verdicts import (
 
 NMPCS = ("nmpc", "anmpc", "rnmpc")
 
-NOT_RUN = "n/a"
+NOT_RUN = "not run"
 """A replicate's verdict on a row measured in replicate 0 only (the bicycle study)."""
 
 SPANS = "_spans"
@@ -460,7 +460,8 @@ def evaluate_claims(
         if column not in table:
             table[column] = "" if column.startswith("verdict") or column == "why" else math.nan
     table = table[order]
-    # a row about replicate 0 alone (the bicycle study's) has no verdict in the others
+    # a row about replicate 0 alone (the bicycle study's) has no verdict in the others (a word
+    # no CSV reader takes for a missing value, as it would "n/a")
     return table.fillna({c: NOT_RUN for c in verdict_columns}), effects
 
 
@@ -470,7 +471,7 @@ def claim_verdicts(table: pd.DataFrame, column: str = "verdict") -> pd.Series:
 
 
 def holds_everywhere(table: pd.DataFrame) -> pd.Series:
-    """Rows that hold in every replicate they were measured in (``n/a`` elsewhere)."""
+    """Rows that hold in every replicate they were measured in (``not run`` elsewhere)."""
     reps = [c for c in table.columns if c.startswith("verdict rep")]
     if not reps:
         return table["verdict"].eq(HOLDS)
