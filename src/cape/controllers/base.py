@@ -164,6 +164,13 @@ class Controller:
     def reset(self, z0: np.ndarray) -> None:
         self.u_prev = np.zeros(2)
 
+    def previewed(self, z: np.ndarray, proj: Projection, t_p: float) -> tuple[Any, ...]:
+        """The measured pose predicted ``t_p`` ahead (``preview_pose``) and its projection on
+        the reference, searched near the measured one: what PID and RISE take their errors
+        from (SPEC §7.1). ``t_p = 0``: the measurement and its projection as they are."""
+        x, y, psi = preview_pose(z, t_p)
+        return x, y, psi, (self.line.project(x, y, proj.s) if t_p else proj)
+
     def command(self, z: np.ndarray, proj: Projection, ref: ReferencePoints) -> np.ndarray:
         """The raw command for measured state ``z``; ``step`` applies the limits."""
         raise NotImplementedError

@@ -25,7 +25,6 @@ from cape.controllers.base import (
     PREVIEW_SCHEMA,
     Controller,
     PIDLoop,
-    preview_pose,
     preview_time,
     require,
 )
@@ -76,9 +75,7 @@ class PIDController(Controller):
         self.cross = PIDLoop.from_config(s["cross_track"], self.ts)
 
     def command(self, z: np.ndarray, proj: Projection, ref: ReferencePoints) -> np.ndarray:
-        x, y, psi = preview_pose(z, self.preview)
-        if self.preview:
-            proj = self.line.project(x, y, proj.s)
+        x, y, psi, proj = self.previewed(z, proj, self.preview)
         ahead = self.lookahead_distance + self.lookahead_time * max(float(z[3]), 0.0)
         s_ahead = proj.s + ahead
         x_ref, y_ref = self.line.path.position_at(s_ahead)

@@ -30,7 +30,6 @@ from cape.controllers.base import (
     PREVIEW_SCHEMA,
     Controller,
     PIDLoop,
-    preview_pose,
     preview_time,
     require,
 )
@@ -79,9 +78,7 @@ class RISEController(Controller):
 
     def command(self, z: np.ndarray, proj: Projection, ref: ReferencePoints) -> np.ndarray:
         ks, alpha = self.ks, self.alpha
-        x, y, psi = preview_pose(z, self.preview)
-        if self.preview:
-            proj = self.line.project(x, y, proj.s)
+        x, y, psi, proj = self.previewed(z, proj, self.preview)
         psi_ref = self.line.path.heading_at(proj.s)
         e1 = cross_track_error(x, y, proj.x, proj.y, psi_ref)
         d_psi = psi - psi_ref
