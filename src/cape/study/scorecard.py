@@ -495,10 +495,17 @@ def counts(table: pd.DataFrame) -> dict[str, int]:
     }
 
 
-def at_a_glance(table: pd.DataFrame, runs: pd.DataFrame, health: pd.DataFrame | None = None) -> str:
+def at_a_glance(
+    table: pd.DataFrame,
+    runs: pd.DataFrame,
+    health: pd.DataFrame | None = None,
+    at_rest: tuple[pd.DataFrame, Sequence[str]] | None = None,
+) -> str:
     """A one-page Markdown summary, written by the scorecard notebook to ``RESULTS.md``: first
     the claims that hold in every replicate, those contradicted, those inconclusive; then what
-    ran, the trainings that failed, and every row with its verdicts and cause."""
+    ran, the trainings that failed, the laps without disturbances with the cause of every miss
+    (``at_rest``: ``cape.study.undisturbed.undisturbed``), and every row with its verdicts and
+    cause."""
     replicates = sorted(int(r) for r in runs["replicate"].unique()) if "replicate" in runs else [0]
     seeds = runs["seed"].nunique() if len(runs) else 0
     reps = [c for c in table.columns if c.startswith("verdict rep")]
@@ -540,6 +547,18 @@ def at_a_glance(table: pd.DataFrame, runs: pd.DataFrame, health: pd.DataFrame | 
         if failed.empty:
             lines.append("- every replicate trained")
         lines.append("")
+    if at_rest is not None and len(at_rest[0]):
+        grid, causes = at_rest
+        lines += [
+            "## Without disturbances (η = 0): laps per replicate and plant",
+            "",
+            "| " + " | ".join(map(str, grid.columns)) + " |",
+            "|" + "---|" * len(grid.columns),
+            *("| " + " | ".join(map(str, r)) + " |" for r in grid.itertuples(index=False)),
+            "",
+            *(f"- {c}" for c in causes),
+            *([""] if causes else []),
+        ]
     lines += ["## Runs", "", "| study | runs | laps completed |", "|---|---|---|"]
     for study, group in runs.groupby("study", sort=False):
         lines.append(f"| {study} | {len(group)} | {group['success'].mean():.0%} |")
