@@ -364,3 +364,16 @@ def test_compiled_training_without_a_compiler_says_how_to_train_eagerly(
     with pytest.raises(CapeError, match=r"training\.compile\.enabled: false"):
         train_model("dpm", config["models"]["dpm"], small_data[10], ts=TS, seed=0, epochs=1,
                     progress=False, compile_settings=settings)  # fmt: skip
+
+
+def test_a_failed_compile_names_its_likely_cause(monkeypatch: pytest.MonkeyPatch) -> None:
+    from cape.models.training import _compile_error
+
+    monkeypatch.delenv("ATEN_CPU_CAPABILITY", raising=False)
+    missing = str(_compile_error(RuntimeError("no compiler found"), missing_compiler=True))
+    assert "needs a C++ compiler" in missing and "training.compile.enabled: false" in missing
+    monkeypatch.setenv("ATEN_CPU_CAPABILITY", "default")
+    forced = str(_compile_error(RuntimeError("vectorisation failed\nmore")))
+    assert "ATEN_CPU_CAPABILITY=default is set" in forced and "C++ compiler (" not in forced
+    assert "vectorisation failed" in forced and "more" not in forced  # the first line only
+    assert "training.compile.enabled: false" in forced

@@ -363,7 +363,7 @@ def training_loss(
 
         get_cpp_compiler()
     except Exception as error:  # Inductor's own exception types are private
-        raise _compile_error(error) from error
+        raise _compile_error(error, missing_compiler=True) from error
     torch._dynamo.config.allow_rnn = True
     options = {"cpp_wrapper": bool(settings.get("cpp_wrapper", False))}
     compiled = torch.compile(loss, dynamic=False, options=options)
@@ -382,11 +382,23 @@ def training_loss(
     return step
 
 
-def _compile_error(error: Exception) -> CapeError:
+def _compile_error(error: Exception, missing_compiler: bool = False) -> CapeError:
+    """The fix for a training step that would not compile: a missing C++ compiler (found
+    before any tracing), or a compilation that failed with one present, where the usual
+    cause is an ISA forced by hand that Inductor cannot generate code for."""
     first = str(error).strip().splitlines()[0][:300] if str(error).strip() else ""
+    if missing_compiler:
+        cause = "It needs a C++ compiler (g++ or clang++, or $CXX); install one"
+    else:
+        isa = os.environ.get("ATEN_CPU_CAPABILITY")
+        cause = (
+            f"ATEN_CPU_CAPABILITY={isa} is set: Inductor cannot compile for it; unset it, or "
+            "pin `training.kernels.aten_capability: avx2` (or avx512) instead"
+            if isa
+            else "A C++ compiler was found, so see the error above"
+        )
     return CapeError(
         f"training.compile: PyTorch could not compile the training step "
-        f"({type(error).__name__}: {first}). It needs a C++ compiler (g++ or clang++, or $CXX); "
-        "install one, or set `training.compile.enabled: false` in config/config.yaml to train "
-        "eagerly (the same recipe, slower)."
+        f"({type(error).__name__}: {first}). {cause}, or set `training.compile.enabled: false` "
+        "in config/config.yaml to train eagerly (the same recipe, slower)."
     )
