@@ -19,22 +19,17 @@ import numpy as np
 from cape.data.windows import make_windows
 from cape.models.evaluate import rear_slip
 from cape.models.trained import load_trained
+from cape.vehicle.dynamics import pacejka
 from cape.vehicle.params import GROUND_TRUTH
 
 AXLES = {"front": ("Bf", "Cf", "Df", "Ef"), "rear": ("Br", "Cr", "Dr", "Er")}
 
 
-def lateral_force(alpha: np.ndarray, b: float, c: float, d: float, e: float) -> np.ndarray:
-    """The magic formula of SPEC §1 without its shifts."""
-    x = b * alpha
-    return d * np.sin(c * np.arctan(x - e * (x - np.arctan(x))))
-
-
 def curve_shape(coefficients: tuple[float, float, float, float]) -> tuple[float, float, float]:
     """(slip of the largest force, that force, first slip where the force turns negative) on
-    0 … 1 rad, for a positive slip (NaN: it never turns)."""
+    0 … 1 rad, for a positive slip (NaN: it never turns); SPEC §1's formula without shifts."""
     alpha = np.linspace(1e-4, 1.0, 10001)
-    force = lateral_force(alpha, *coefficients) * np.sign(lateral_force(alpha[:1], *coefficients))
+    force = pacejka(alpha, *coefficients) * np.sign(pacejka(alpha[:1], *coefficients))
     turned = np.flatnonzero(force < 0)
     peak = int(np.argmax(force))
     turns = float(alpha[turned[0]]) if turned.size else float("nan")

@@ -37,6 +37,7 @@ from cape.study.verdicts import (
     interval,
     verdict,
 )
+from cape.tables import to_markdown
 
 NMPCS = ("nmpc", "anmpc", "rnmpc")
 
@@ -552,10 +553,7 @@ def at_a_glance(
         lines += [
             "## Without disturbances (η = 0): laps per replicate and plant",
             "",
-            "| " + " | ".join(map(str, grid.columns)) + " |",
-            "|" + "---|" * len(grid.columns),
-            *("| " + " | ".join(map(str, r)) + " |" for r in grid.itertuples(index=False)),
-            "",
+            to_markdown(grid),
             *(f"- {c}" for c in causes),
             *([""] if causes else []),
         ]

@@ -42,9 +42,14 @@ def slip_extent(series: pd.DataFrame) -> tuple[float, float]:
     return float(np.max(np.abs(front))), float(np.max(np.abs(rear)))
 
 
-def _extent(rows: pd.DataFrame, root: Path) -> tuple[float, float]:
-    """The largest slip angles over several runs (their folders are relative to ``root``)."""
-    extents = [slip_extent(read_series(root / folder)) for folder in rows["folder"]]
+def _extent(
+    rows: pd.DataFrame, root: Path, seen: dict[Path, tuple[float, float]]
+) -> tuple[float, float]:
+    """The largest slip angles over several runs (their folders are relative to ``root``);
+    ``seen`` keeps each run's, since the same ground-truth laps serve several cells."""
+    for folder in (root / f for f in rows["folder"] if root / f not in seen):
+        seen[folder] = slip_extent(read_series(folder))
+    extents = [seen[root / f] for f in rows["folder"]]
     if not extents:
         return float("nan"), float("nan")
     front, rear = zip(*extents, strict=True)
@@ -77,7 +82,7 @@ def undisturbed(
     ``laps/runs``), and one line per cell with a failure naming its measured cause.
     ``failed`` is ``failed_trainings``' replicate → model → reason; ``root`` is the folder the
     runs' ``folder`` column is relative to (the repository)."""
-    root = Path(root)
+    root, seen = Path(root), {}
     at_rest = runs[runs["study"].eq(study) & runs["eta"].astype(float).eq(0.0)]
     controllers = list(dict.fromkeys(at_rest["controller"]))
     table, causes = [], []
@@ -90,7 +95,7 @@ def undisturbed(
             if len(cell) and laps < len(cell):
                 internal = str(cell["internal"].iloc[0])
                 cause = _cause(
-                    cell, runs, failed.get(int(replicate), {}), truth_plant, internal, root
+                    cell, runs, failed.get(int(replicate), {}), truth_plant, internal, root, seen
                 )
                 causes.append(
                     f"replicate {replicate}, {plant.upper()} plant, {controller}: "
@@ -107,6 +112,7 @@ def _cause(
     truth_plant: str,
     internal: str,
     root: Path,
+    seen: dict[Path, tuple[float, float]],
 ) -> str:
     """The measured cause of one cell's failures (see the module's docstring)."""
     lost = cell[~cell["success"].astype(bool)]
@@ -117,9 +123,9 @@ def _cause(
         for m in failed
         if m in (plant, internal)
     ]
-    front, rear = _extent(lost, root)
+    front, rear = _extent(lost, root, seen)
     reference = _reference(runs, truth_plant, str(cell["controller"].iloc[0]), internal)
-    ref_front, ref_rear = _extent(reference, root)
+    ref_front, ref_rear = _extent(reference, root, seen)
     laps = f"{len(reference)} lap{'s' if len(reference) != 1 else ''}"
     slid = f"before it the slip angles reached {front:.2f} rad front, {rear:.2f} rad rear" + (
         f"; the ground-truth car under the same controller stays within {ref_front:.2f} and "

@@ -35,6 +35,12 @@ def _pacejka(alpha: Any, B: Any, C: Any, D: Any, E: Any, Sv: Any, ops: Any) -> A
     return Sv + D * ops.sin(C * ops.atan(b_alpha - E * (b_alpha - ops.atan(b_alpha))))
 
 
+def pacejka(alpha: Any, B: Any, C: Any, D: Any, E: Any, Sv: Any = 0.0) -> Any:
+    """One axle's lateral force (N) at slip angle ``alpha`` on any backend (the formula of
+    ``tire_forces``, for looking at a tyre curve by itself)."""
+    return _pacejka(alpha, B, C, D, E, Sv, ops_for(alpha, B, C, D, E, Sv))
+
+
 def tire_forces(vx: Any, vy: Any, omega: Any, delta: Any, p: Params) -> tuple[Any, Any]:
     """Lateral tyre forces Ffy, Fry (N) from the Pacejka formula."""
     ops = ops_for(vx, vy, omega, delta, *p.values())
