@@ -14,9 +14,10 @@ import pytest
 from cape.cli import main
 from cape.errors import CapeError
 from cape.study.aggregate import collect_runs, mean_ci, summarise
+from cape.study.glance import at_a_glance
 from cape.study.grid import RunId, canonical, study_runs
 from cape.study.record import write_run_files, write_timing
-from cape.study.scorecard import at_a_glance, learned_claims
+from cape.study.scorecard import evaluate_claims
 from cape.study.tables import (
     best_controller,
     controller_parameters,
@@ -201,7 +202,7 @@ def test_the_scorecard_recomputes_the_claims_per_seed() -> None:
                     "mean_abs_ex_penalised": ex * (1 + 0.1 * seed), "mean_abs_ey_penalised": ex,
                     "mean_speed": 2.0 if model == "epm" else 1.0,
                 })  # fmt: skip
-    table = pd.DataFrame(learned_claims(pd.DataFrame(rows)))  # no replicate column: replicate 0
+    table, _ = evaluate_claims(pd.DataFrame(rows), pd.DataFrame(), {}, bicycle=None)  # replicate 0
     lap = table[table["claim"].str.startswith("adaptive")].set_index("comparison")
     # EPM − DDM is −2 s in every seed (6, 7, 8 against 8, 9, 10): an interval of one point
     assert (
@@ -219,7 +220,7 @@ def test_the_scorecard_recomputes_the_claims_per_seed() -> None:
     assert fails.loc["EPM − DDM", "verdict"] == "inconclusive"
     # one claim, one label: the grid's 2 NMPCs × 1 η, whichever runs a model has so far
     incomplete = pd.DataFrame(rows).query("not (model == 'ddm' and controller == 'nmpc')")
-    labels = pd.DataFrame(learned_claims(incomplete))["claim"]
+    labels = evaluate_claims(incomplete, pd.DataFrame(), {}, bicycle=None)[0]["claim"]
     assert set(labels[labels.str.startswith("NMPC-family")]) == {
         "NMPC-family failures of 2 runs: EPM fewest"
     }
@@ -227,9 +228,9 @@ def test_the_scorecard_recomputes_the_claims_per_seed() -> None:
     page = at_a_glance(table, pd.DataFrame(rows))
     assert page.startswith("# CAPE results at a glance")
     assert "| learned | 27 | 89% |" in page  # 3 of the 27 runs (DPM, nominal NMPC) failed
-    every = int((table["verdict rep0"] == "holds").sum())
-    assert f"## Holds in every replicate: {every} of {len(table)} rows" in page
-    assert "## Inconclusive (pooled): 1 of" in page
+    holds = int((table["verdict"] == "holds").sum())
+    assert f"## Holds for this training draw: {holds} of {len(table)} rows" in page
+    assert "## Inconclusive for this training draw: 1 of" in page
     assert page.count("\n| adaptive NMPC lap time") == 3  # its three rows in the full table
 
 

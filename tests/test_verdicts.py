@@ -1,5 +1,6 @@
-"""Three-valued verdicts (SPEC §10) from the two-level interval, on cases worked by hand and on
-hand-made runs; training health (SPEC §4); the grid's replicates (SPEC §8)."""
+"""Three-valued verdicts (SPEC §10) from the t-interval over training draws: cases worked by hand,
+its calibration by simulation, draws needed, hand-made runs; training health (SPEC §4); the
+grid's replicates (SPEC §8)."""
 
 from __future__ import annotations
 
@@ -9,61 +10,107 @@ import pytest
 from scipy import stats
 
 from cape.models.health import outliers, training_checks, training_health
+from cape.study.calibration import bootstrap_two_level, exclusion_rate, nested, t_over_draws
+from cape.study.claims import ClosedLoopClaim, Context, Pair, controllers
 from cape.study.grid import RunId, canonical, study_runs
-from cape.study.scorecard import Context, learned_claims
+from cape.study.scorecard import evaluate_claims, presented
 from cape.study.verdicts import (
     CONTRADICTED,
+    DRAWS,
     HOLDS,
     INCONCLUSIVE,
+    NO_EFFECT,
+    POINT,
+    SEEDS,
     Interval,
     combine,
+    draw_effects,
+    draws_needed,
     exact_verdict,
     interval,
-    two_level_distribution,
     verdict,
 )
 
 
-def test_the_two_level_distribution_matches_a_case_worked_by_hand() -> None:
-    """Replicates A = {0, 1} and B = {3, 3}. The outer draw picks (A, A) with probability 1/4,
-    (A, B) 1/2, (B, B) 1/4; A's inner mean is 0, 0.5, 1 with 1/4, 1/2, 1/4. So the statistic is
-    0 with probability 1/4 · 1/16 = 1/64, 0.25 with 4/64, 3 with 1/4, and its mean is the mean of
-    the replicates' means, 1.75. The 2.5 % quantile falls in the atom at 0.25 (cumulative
-    1/64 … 5/64) and the 97.5 % one in the atom at 3 (3/4 … 1): the interval is [0.25, 3]."""
-    effects = {0: [0.0, 1.0], 1: [3.0, 3.0]}
-    dist = two_level_distribution(effects, resamples=200_000, seed=1)
-    n = dist.size
-
-    def close(p: float, value: float) -> None:
-        observed = np.mean(np.isclose(dist, value))
-        assert abs(observed - p) < 4 * np.sqrt(p * (1 - p) / n), (value, observed, p)
-
-    close(1 / 64, 0.0)
-    close(4 / 64, 0.25)
-    close(1 / 4, 3.0)
-    close(1 / 2 * 1 / 4, 1.5)  # (A, B) with A's inner mean 0
-    assert dist.mean() == pytest.approx(1.75, abs=0.01)
-    span = interval(effects, resamples=200_000, seed=1)
-    assert span.estimate == 1.75
-    assert (span.low, span.high) == (pytest.approx(0.25), pytest.approx(3.0))
-    assert (span.replicates, span.values) == (2, 4)
+def test_the_interval_is_students_t_over_the_draws_means() -> None:
+    """Draws' means 2, 4, 6 (the seeds of a draw averaged first, whatever their number): mean
+    4, sd 2, standard error 2/√3; t(0.975, 2 df) = 4.302653, so the interval is 4 ± 4.968."""
+    span = interval({0: [1.0, 3.0], 1: [4.0], 2: [6.0, 6.0, 6.0]})
+    half = 4.302653 * 2 / np.sqrt(3)
+    assert span.estimate == pytest.approx(4.0)
+    assert (span.low, span.high) == (
+        pytest.approx(4 - half, abs=1e-5),
+        pytest.approx(4 + half, abs=1e-5),
+    )
+    assert (span.replicates, span.values, span.unit, span.sd) == (3, 6, DRAWS, pytest.approx(2.0))
+    assert draw_effects({0: [1.0, 3.0], 1: [4.0], 2: [float("nan")]}) == {0: 2.0, 1: 4.0}
 
 
-def test_one_replicate_is_the_ordinary_bootstrap_over_seeds() -> None:
-    """With one replicate the two-level draw is scipy's percentile bootstrap of the mean."""
+def test_one_draw_is_students_t_over_its_seeds() -> None:
+    """One trained network: the interval is over its seeds (n − 1 degrees of freedom)."""
     x = np.array([0.3, -0.1, 0.8, 0.2, 0.5, 0.05, 0.6])
-    ours = interval({0: list(x)}, resamples=100_000, seed=3)
-    theirs = stats.bootstrap(
-        (x,), np.mean, n_resamples=100_000, method="percentile", random_state=4
-    ).confidence_interval
-    assert ours.low == pytest.approx(theirs.low, abs=0.01)
-    assert ours.high == pytest.approx(theirs.high, abs=0.01)
-    assert ours.estimate == pytest.approx(x.mean())
+    span = interval({0: list(x)})
+    theirs = stats.t.interval(0.95, x.size - 1, loc=x.mean(), scale=stats.sem(x))
+    assert (span.low, span.high) == (pytest.approx(theirs[0]), pytest.approx(theirs[1]))
+    assert span.unit == SEEDS and span.replicates == 1
+    assert interval({0: [2.5]}).unit == POINT  # one value: the measurement itself
+    assert interval({0: [-2.0] * 5, 1: [-2.0]}).low == -2.0  # nothing varies: a point
 
 
-def test_a_replicate_weighs_the_same_whatever_its_seeds() -> None:
+def test_a_draw_weighs_the_same_whatever_its_seeds() -> None:
     span = interval({0: [1.0] * 9, 1: [3.0]})
-    assert span.estimate == 2.0  # the mean of the replicates' means, not of the 10 values
+    assert span.estimate == 2.0  # the mean of the draws' means, not of the 10 values
+
+
+CASES = [(draws, ratio) for draws in (3, 5, 10) for ratio in (0.0, 0.2, 1.0, 10.0)]
+
+
+@pytest.mark.parametrize(("draws", "ratio"), CASES)
+def test_the_interval_is_wrong_at_most_at_its_nominal_rate(draws: int, ratio: float) -> None:
+    """No true effect, draws × five seeds, 4000 seeded trials: the 95 % interval excludes zero
+    in at most 6.5 % of them (5 % nominal; 6.5 % is three Monte Carlo standard errors above)."""
+    rate = exclusion_rate(
+        t_over_draws, draws, ratio, trials=4000, seed=draws * 100 + int(10 * ratio)
+    )
+    assert rate <= 0.065, f"R = {draws}, σ_between/σ_within = {ratio}: {rate:.1%} excluded zero"
+
+
+@pytest.mark.parametrize("ratio", [1.0, 10.0])
+def test_a_true_effect_of_three_between_draw_sds_is_found_at_five_draws(ratio: float) -> None:
+    """An interval that is never decided is no answer either: a true effect of 3 σ_between at
+    R = 5 is found in at least 60 % of trials where the draws differ at least as much as the
+    seeds (at σ_between = 0.2 σ_within the effect is 0.6 σ_within: 54 %, docs/study.md)."""
+    rate = exclusion_rate(t_over_draws, 5, ratio, effect=3 * ratio, trials=4000, seed=7)
+    assert rate >= 0.60, f"σ_between/σ_within = {ratio}: found in {rate:.1%}"
+
+
+def test_the_calibration_runs_the_scorecards_own_interval() -> None:
+    """The batch the calibration draws gives, trial by trial, the interval ``interval`` gives."""
+    rng = np.random.default_rng(5)
+    data = nested(rng, 50, 3, 5, 1.0)
+    low, high = t_over_draws(data, 0.95, rng)
+    for k in range(50):
+        span = interval({r: list(data[k, r]) for r in range(3)})
+        assert (span.low, span.high) == (pytest.approx(low[k]), pytest.approx(high[k]))
+
+
+def test_the_retired_bootstrap_fails_the_calibration() -> None:
+    """The two-level percentile bootstrap the scorecard used before: at three draws that differ
+    more than their seeds it excludes zero far more often than 6.5 % of null trials (the test
+    above fails on it; docs/study.md has the full table)."""
+    rate = exclusion_rate(bootstrap_two_level, 3, 10.0, trials=300, seed=1)
+    assert rate > 0.15, rate
+
+
+def test_draws_needed_is_the_one_sample_t_tests_sample_size() -> None:
+    """Power 0.8 at α = 0.05, two-sided, one-sample t: d = 1 needs 10 draws, d = 0.5 needs 34
+    (the textbook values, e.g. G*Power's)."""
+    d1 = Interval(1.0, -1, 3, 3, 15, DRAWS, 1.0)
+    d05 = Interval(-0.5, -2, 1, 3, 15, DRAWS, 1.0)
+    assert draws_needed(d1) == "10" and draws_needed(d05) == "34"
+    assert draws_needed(Interval(0.0, -1, 1, 3, 15, DRAWS, 1.0)) == NO_EFFECT
+    assert draws_needed(Interval(0.01, -1, 1, 3, 15, DRAWS, 1.0)) == "> 100"
+    assert draws_needed(Interval(1.0, -1, 3, 1, 5, SEEDS, 1.0)) == ""  # one draw: no spread
 
 
 def test_the_verdict_compares_the_interval_with_zero_on_the_papers_side() -> None:
@@ -95,29 +142,106 @@ def _runs(laps: dict[str, list[list[float]]]) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def test_hand_made_runs_give_one_case_of_each_verdict() -> None:
-    """EPM laps 1 s faster than DDM in every seed of both replicates (holds); DPM is 1 s faster
-    than DDM (the paper says slower: contradicted); EPM against DPM is a tie within the seeds'
-    spread (inconclusive). Replicate 1 of DPM failed to train: the `trained` pool drops it."""
-    noise = [0.2, -0.2, 0.1, -0.1, 0.0]
-    ddm = [[8.0 + n for n in noise], [8.1 + n for n in noise]]
-    epm = [[7.0 + n for n in noise], [7.1 + n for n in noise]]
-    dpm = [[7.0 - n for n in noise], [7.1 - n for n in noise]]
-    context = Context(failed={1: {"dpm": "stalled"}})
-    rows = {
-        r["comparison"]: r
-        for r in learned_claims(_runs({"epm": epm, "ddm": ddm, "dpm": dpm}), context)
-        if r["claim"].startswith("adaptive NMPC lap time")
+NOISE = [0.2, -0.2, 0.1, -0.1, 0.0]  # one model's seeds around its draw's lap time
+EPM = [7.0, 7.2, 6.9]  # the ANMPC's lap time per draw
+DDM = [e + d for e, d in zip(EPM, [1.0, 1.1, 1.2], strict=True)]  # 1.0–1.2 s slower in every draw
+DPM = [e - d for e, d in zip(EPM, [0.5, -1.5, -0.8], strict=True)]  # the draws disagree
+LAP = controllers(["anmpc"])
+
+
+def _laps(draws: list[int]) -> pd.DataFrame:
+    laps = {
+        "epm": [[t + n for n in NOISE] for t in EPM],
+        "ddm": [[t] * 5 for t in DDM],
+        "dpm": [[t] * 5 for t in DPM],
     }
-    assert rows["EPM − DDM"]["verdict"] == HOLDS
-    assert rows["EPM − DDM"]["verdict rep0"] == HOLDS == rows["EPM − DDM"]["verdict rep1"]
-    assert rows["DDM − DPM"]["verdict"] == CONTRADICTED
-    assert rows["EPM − DPM"]["verdict"] == INCONCLUSIVE
-    assert rows["EPM − DDM"]["why"] == ""
-    assert rows["DDM − DPM"]["why"] == "not explained; training failed: DPM replicate 1"
-    assert rows["EPM − DPM"]["why"].startswith("within the spread of the seeds in every replicate")
-    assert rows["EPM − DDM"]["ci95_high"] < 0 < rows["DDM − DPM"]["ci95_low"]
-    assert rows["EPM − DDM"]["replicates"] == 2
+    return _runs({m: [per[r] for r in draws] for m, per in laps.items()}).assign(
+        replicate=lambda f: f["replicate"].map(dict(enumerate(draws)))
+    )
+
+
+def _claim(*pairs: Pair) -> ClosedLoopClaim:
+    return ClosedLoopClaim("lap time (s)", LAP, "lap_time_penalised", pairs, unit=" s")
+
+
+def test_hand_made_runs_give_one_case_of_each_verdict_over_the_draws() -> None:
+    """Three draws. EPM is 1.0, 1.1, 1.2 s faster than DDM (holds; said the other way round,
+    contradicted); EPM against DPM is +0.5, −1.5, −0.8 s: each network decided on its seeds, the
+    draws disagreeing, so the class is undecided, with the draws that would decide it (Cohen's d
+    0.59 → 25 draws). DPM's draw 1 failed to train: the `trained` pool drops it."""
+    pairs = [Pair("epm", "ddm", -1.0, "−1"), Pair("ddm", "epm", -1.0, "−1")]
+    claim = _claim(*pairs, Pair("epm", "dpm", -1.0, "−1"))
+    failed = Context(failed={1: {"dpm": "stalled"}})
+    table, effects = evaluate_claims(
+        _laps([0, 1, 2]),
+        pd.DataFrame(),
+        {},
+        context=failed,
+        claims=[claim],
+        model_claims=[],
+        bicycle=None,
+    )
+    rows = table.set_index("comparison")
+    assert rows.loc["EPM − DDM", "verdict"] == HOLDS and rows.loc["EPM − DDM", "why"] == ""
+    assert rows.loc["EPM − DDM", "ci95_high"] < 0 and rows.loc["EPM − DDM", "draws"] == 3
+    assert rows.loc["DDM − EPM", "verdict"] == CONTRADICTED
+    assert rows.loc["DDM − EPM", "why"] == "not explained"
+    mixed = rows.loc["EPM − DPM"]
+    assert [mixed[f"effect rep{r}"] for r in range(3)] == [
+        pytest.approx(v) for v in (0.5, -1.5, -0.8)
+    ]
+    assert [mixed[f"verdict rep{r}"] for r in range(3)] == [CONTRADICTED, HOLDS, HOLDS]
+    assert mixed["verdict"] == INCONCLUSIVE and mixed["draws needed"] == "25"
+    assert mixed["why"] == (
+        "the training draws disagree (rep0 contradicted, rep1 holds, rep2 holds); "
+        "training failed: DPM replicate 1"
+    )
+    assert mixed["verdict trained"] == INCONCLUSIVE  # two draws, +0.5 and −0.8: t with 1 df
+    assert rows.loc["EPM − DDM", "draws needed"] == ""  # decided: nothing to plan
+    shown = presented(table)
+    assert {"verdict (3 draws)", "verdict rep0 (this network)", "draws needed"} <= set(shown)
+    assert set(effects["scope"]) == {"pooled", "rep0", "rep1", "rep2"}
+
+
+def test_networks_that_agree_can_leave_the_class_undecided() -> None:
+    """Every draw's network holds on its own seeds, but three draws this far apart (−0.5, −3,
+    −0.2 s) cannot place the class: the t-interval over them contains zero."""
+    epm = [1.0 + n for n in NOISE]
+    runs = _runs({"epm": [epm, epm, epm], "ddm": [[1.5] * 5, [4.0] * 5, [1.2 + n for n in NOISE]]})
+    claim = _claim(Pair("epm", "ddm", -1.0, "−1"))
+    table, _ = evaluate_claims(
+        runs, pd.DataFrame(), {}, claims=[claim], model_claims=[], bicycle=None
+    )
+    row = table.iloc[0]
+    assert [row[f"verdict rep{r}"] for r in range(3)] == [HOLDS] * 3
+    assert row["verdict"] == INCONCLUSIVE and row["why"].startswith(
+        "every network's verdict is holds"
+    )
+    assert int(row["draws needed"]) > 3
+
+
+def test_one_draw_says_its_verdicts_are_this_draws() -> None:
+    """The default target's single draw: one verdict column, named for the draw, no per-draw
+    or draws-needed columns; RESULTS.md says so and names the command for class verdicts."""
+    from cape.study.glance import at_a_glance
+
+    claim = _claim(Pair("epm", "ddm", -1.0, "−1"), Pair("epm", "dpm", -1.0, "−1"))
+    runs = _laps([0])
+    table, effects = evaluate_claims(
+        runs, pd.DataFrame(), {}, claims=[claim], model_claims=[], bicycle=None
+    )
+    rows = table.set_index("comparison")
+    assert rows.loc["EPM − DDM", "verdict"] == HOLDS  # −1 s in every seed: over the seeds
+    assert rows.loc["EPM − DPM", "verdict"] == CONTRADICTED  # +0.5 s ± 0.16 over the seeds
+    shown = presented(table)
+    assert list(shown.columns) == [
+        *("claim", "comparison", "paper", "ours", "ci95_low", "ci95_high"),
+        *("verdict (this training draw)", "why"),
+    ]
+    assert set(effects["scope"]) == {"rep0"}
+    page = at_a_glance(table, runs)
+    assert "## Holds for this training draw: 1 of 2 rows" in page
+    assert "snakemake --cores 2 replicates" in page and "every replicate" not in page
 
 
 def test_a_failed_training_is_flagged_by_each_check() -> None:
@@ -177,4 +301,23 @@ def test_a_row_of_replicate_0_alone_holds_everywhere_it_was_measured() -> None:
             "verdict": [HOLDS, HOLDS, HOLDS],
         }
     )
-    assert counts(table)["hold in every replicate"] == 2  # the first and the last
+    assert counts(table)["hold for every network"] == 2  # the first and the last
+
+
+def test_a_claim_the_study_cannot_evaluate_is_listed_with_why() -> None:
+    """A study without the adaptive NMPC (and no bicycle study): its claims stay in table 8 and
+    RESULTS.md as "not evaluated", each with its reason, instead of vanishing."""
+    from cape.study.claims import CLOSED_LOOP
+    from cape.study.glance import at_a_glance
+    from cape.study.scorecard import counts
+
+    runs = _laps([0, 1]).assign(controller="pid")
+    table, _ = evaluate_claims(runs, pd.DataFrame(), {}, claims=CLOSED_LOOP, model_claims=[])
+    adaptive = table[table["claim"].str.startswith("adaptive NMPC")]
+    assert len(adaptive) == 3 and set(adaptive["verdict"]) == {"not evaluated"}
+    assert set(adaptive["why"]) == {"not evaluated: the paper's study has no runs of anmpc"}
+    bicycle = table[table["claim"].str.startswith("best bicycle")]
+    assert bicycle["why"].iloc[0] == "not evaluated: no bicycle study of DPM-fixed in the config"
+    assert counts(table)["not evaluated"] == len(table) == 3 + 6 + 2 + 3  # η = 1: none either
+    page = at_a_glance(table, runs)
+    assert f"## Not evaluated: {len(table)} of {len(table)} rows" in page

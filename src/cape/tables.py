@@ -7,6 +7,7 @@ a per-column format so that a table reads like the paper's.
 from __future__ import annotations
 
 import html
+import math
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -35,6 +36,18 @@ def _formatted(
                 cells.append(str(value))
         rows.append(cells)
     return rows
+
+
+def number(value: Any) -> str:
+    """Four significant digits; a missing value (no CI from one seed, no lap) as a dash."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "–"
+    return f"{value:.4g}" if isinstance(value, float) else str(value)
+
+
+def number_formats(frame: pd.DataFrame) -> dict[str, Formatter]:
+    """Per column, how a table's Markdown and LaTeX copies print it: numbers by ``number``."""
+    return dict.fromkeys(frame.select_dtypes("number").columns, number)
 
 
 def to_markdown(frame: pd.DataFrame, formats: Mapping[str, str | Formatter] | None = None) -> str:

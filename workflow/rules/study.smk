@@ -181,7 +181,9 @@ rule notebook_scorecard:
         notebook="{scope}/notebooks/scorecard.ipynb",
         html="{scope}/notebooks/scorecard.html",
     params:
-        cfg=lambda wildcards: config_json("tracks", "data", "reference", "controllers", "models", "study", "training"),
+        cfg=lambda wildcards: config_json(
+            "tracks", "data", "reference", "controllers", "models", "study", "training", "scorecard"
+        ),
         paths=scorecard_params,
     conda:
         CAPE_ENV

@@ -1,5 +1,6 @@
-"""Figure 13: each closed-loop claim's effect per training replicate and pooled, with its 95 %
-interval, beside the paper's value (cape.study.scorecard.evaluate_claims computes them)."""
+"""Figure 13: each closed-loop claim's effect with its 95 % interval, per training draw (over
+its seeds: one trained network) and over the draws (the model class), beside the paper's value
+(cape.study.scorecard.evaluate_claims computes them)."""
 
 from __future__ import annotations
 
@@ -10,9 +11,16 @@ import pandas as pd
 from cape.plots import style  # noqa: F401  (the headless backend)
 
 
+def _label(scope: str) -> str:
+    if scope == "pooled":
+        return "over the draws (t)"
+    return f"{scope}: one network"
+
+
 def claim_effects(effects: pd.DataFrame) -> plt.Figure:
-    """One panel per claim, one band per comparison: the replicates' intervals (thin) and the
-    pooled one (thick, black), the paper's value (a red diamond) and zero (the verdict's line)."""
+    """One panel per claim, one band per comparison: each draw's interval over its seeds (thin)
+    and the interval over the draws (thick, black), the paper's value (a red diamond) and zero
+    (the verdict's line)."""
     claims = list(dict.fromkeys(effects["claim"]))
     heights = [max(1, effects[effects["claim"] == c]["comparison"].nunique()) for c in claims]
     fig, axes = plt.subplots(
@@ -45,7 +53,7 @@ def claim_effects(effects: pd.DataFrame) -> plt.Figure:
                     lw=2.2 if pooled else 1.0,
                     ms=5 if pooled else 3.5,
                     capsize=2,
-                    label=("pooled" if pooled else scope) if y == 0 else None,
+                    label=_label(scope) if y == 0 else None,
                 )
             paper = mine["paper"].iloc[0]
             if np.isfinite(paper):

@@ -8,7 +8,6 @@ and their HTML copies are where a user sees the results and how they were made.
 from __future__ import annotations
 
 import base64
-import math
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -22,7 +21,7 @@ from cape.plots.style import PNG_DPI, save_figure
 from cape.study.grid import RunId
 from cape.study.outputs import declared
 from cape.study.record import read_series
-from cape.tables import Formatter, to_html, to_markdown, write_table
+from cape.tables import number_formats, to_html, to_markdown, write_table
 
 SCREEN_DPI = 100
 """CSS pixels per figure inch at which a notebook shows a figure: matplotlib's own screen
@@ -68,13 +67,6 @@ def series_of(root: str | Path, runs: pd.DataFrame) -> dict[tuple[str, str], pd.
     return {(row["model"], row["controller"]): run_series(root, row) for _, row in runs.iterrows()}
 
 
-def _number(value: Any) -> str:
-    """Four significant digits; a missing value (no CI from one seed, no lap) as a dash."""
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return "–"
-    return f"{value:.4g}" if isinstance(value, float) else str(value)
-
-
 def _declared(stem: str) -> None:
     """A figure or table must be declared in cape.study.outputs (what the rules build)."""
     name = Path(stem).name
@@ -99,15 +91,10 @@ def _show(data: dict[str, str], metadata: dict[str, Any] | None = None) -> None:
         display(data, raw=True, metadata=metadata or {})
 
 
-def _formats(frame: pd.DataFrame) -> dict[str, Formatter]:
-    """Per column, how the saved Markdown and LaTeX copies print it: numbers by ``_number``."""
-    return dict.fromkeys(frame.select_dtypes("number").columns, _number)
-
-
 def show_table(frame: pd.DataFrame) -> None:
     """Show ``frame`` in the notebook as its .md and .tex copies print it (four significant
     digits, a dash for a missing value, no row index), not as pandas would (NaN, six decimals)."""
-    formats = _formats(frame)
+    formats = number_formats(frame)
     _show({"text/html": to_html(frame, formats), "text/plain": to_markdown(frame, formats)})
 
 
@@ -116,7 +103,7 @@ def save_table(frame: pd.DataFrame, stem: str, latex: bool = True) -> None:
     the table is then shown in the notebook as the .md prints it."""
     _declared(stem)
     paths = [f"{stem}.csv", f"{stem}.md"] + ([f"{stem}.tex"] if latex else [])
-    write_table(frame, paths, formats=_formats(frame))
+    write_table(frame, paths, formats=number_formats(frame))
     show_table(frame)
 
 

@@ -75,8 +75,8 @@ WHOLE_STUDY_NOTEBOOKS: dict[str, NotebookOutputs] = {
     "scorecard": NotebookOutputs(
         figures={
             "fig13_claim_effects": (
-                "each closed-loop claim's effect per training replicate and pooled, with its "
-                "95 % interval, beside the paper's"
+                "each closed-loop claim's effect with its 95 % interval, per training draw "
+                "(over its seeds) and over the draws, beside the paper's"
             )
         },
         tables=("table08_scorecard", "table04_replicates", "table01_replicates"),

@@ -1,89 +1,120 @@
-"""Table 8: the paper's headline claims (SPEC §10) beside CAPE's, each with a three-valued
-verdict per training replicate and pooled over them, and the measured cause of every verdict
-that is not ``holds``.
+"""Table 8: the claims of cape.study.claims evaluated on a scope's runs and tables (SPEC §10).
 
-A claim is tested as pairwise effects (an ordering EPM < DDM < DPM: EPM − DDM, EPM − DPM,
-DDM − DPM; "EPM fewest failures": EPM − DDM, EPM − DPM), one row each. A closed-loop effect is
-measured per (replicate, seed), pairing the models' runs of the same replicate index and
-disturbance seed, and its interval is the two-level bootstrap of ``cape.study.verdicts``. An
-open-loop error or an inference time is one value per replicate (the bootstrap over
-replicates); a parameter count, a size or a FLOP count is the architecture's and exact.
+Each pairwise comparison is one row. A closed-loop effect is measured per (training draw,
+disturbance seed), pairing the two models' runs of the same draw index and seed; a model row
+has one value per draw. With two or more draws the row's verdict is about the model class: the
+t-interval over the draws' effects (cape.study.verdicts). Beside it every draw's effect and its
+own verdict over its seeds (a statement about that one trained network), the verdict over the
+draws whose trainings did not fail, and for a row left undecided the draws per model that would
+decide it (``draws needed``). With one draw (the default target) the verdict is about that
+draw's networks, and the table says so (``presented``).
 
-Columns: ``claim``, ``comparison``, ``paper`` (the paper's effect), ``ours`` (our pooled
-estimate, and the two models' values), ``ci95_low``/``ci95_high``, ``replicates``,
-``verdict rep<r>`` per replicate, ``verdict`` (pooled), ``verdict trained`` (pooled over the
-replicates whose trainings did not fail, SPEC §4), ``why``.
+Internal columns: ``claim``, ``comparison``, ``paper``, ``ours``, ``ci95_low``,
+``ci95_high``, ``estimate``, ``draws``, ``effect rep<r>``, ``verdict rep<r>``, ``verdict``,
+``verdict trained``, ``draws needed``, ``why``.
 """
 
 from __future__ import annotations
 
-import itertools
 import math
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from cape import paper
+from cape.study.claims import (
+    BICYCLE,
+    CLOSED_LOOP,
+    FAILURES,
+    MODEL,
+    BicycleClaim,
+    ClosedLoopClaim,
+    Context,
+    ModelClaim,
+    Pair,
+)
 from cape.study.verdicts import (
     CONTRADICTED,
     HOLDS,
     INCONCLUSIVE,
     VERDICTS,
-    combine,
+    Interval,
+    draw_effects,
+    draws_needed,
     exact_verdict,
     interval,
     verdict,
 )
-from cape.tables import to_markdown
 
-NMPCS = ("nmpc", "anmpc", "rnmpc")
+__all__ = ["Context", "Settings", "counts", "evaluate_claims", "one_draw", "presented"]
+
+LEVEL = 0.95
+"""The verdicts' interval (SPEC §10: 95 %)."""
 
 NOT_RUN = "not run"
-"""A replicate's verdict on a row measured in replicate 0 only (the bicycle study)."""
+"""A draw's verdict on a row measured in replicate 0 only (the bicycle study)."""
 
-SPANS = "_spans"
-"""A closed-loop row's intervals (per replicate and pooled), kept for figure 13."""
+NOT_EVALUATED = "not evaluated"
+"""The verdict of a row the study cannot evaluate (no runs of the claim's controller, a model
+absent): listed with its reason, never dropped."""
 
 Effects = dict[int, list[float]]
-"""Replicate → the effect's values (one per seed, or one for the replicate)."""
+"""Replicate → the effect's values (one per seed, or one for the draw)."""
+
+
+@dataclass(frozen=True)
+class Settings:
+    """``draws needed``: the power it plans for and the most draws it names (config
+    ``scorecard``)."""
+
+    power: float = 0.8
+    most_draws: int = 100
+
+    @classmethod
+    def from_config(cls, section: Mapping[str, Any] | None) -> Settings:
+        section = section or {}
+        return cls(float(section.get("power", 0.8)), int(section.get("most_draws", 100)))
 
 
 @dataclass
-class Context:
-    """What the ``why`` column draws on, all measured: the reference's ideal lap time, the
-    trainings that failed (replicate → model → reason), the open-loop tables per replicate."""
+class _Evaluation:
+    replicates: Sequence[int]
+    context: Context
+    settings: Settings
+    rows: list[dict]
+    spans: list[dict]
 
-    ideal_lap_time: float | None = None
-    failed: Mapping[int, Mapping[str, str]] = field(default_factory=dict)
-    openloop: Mapping[int, pd.DataFrame] = field(default_factory=dict)
 
-
-def _per(runs: pd.DataFrame, value: pd.Series) -> dict[tuple[str, int], pd.Series]:
-    """(model, replicate) → the value per seed."""
+def _per_seed(runs: pd.DataFrame, claim: ClosedLoopClaim) -> dict[tuple[str, int], pd.Series]:
+    """(model, replicate) → the claim's value per seed over the runs it reads."""
+    value = (
+        (~runs["success"].astype(bool)).astype(float)
+        if claim.metric == FAILURES
+        else runs[claim.metric]
+    )
     frame = runs.assign(_value=value)
     out = {}
     for (model, replicate), group in frame.groupby(["model", "replicate"]):
-        out[(str(model), int(replicate))] = group.groupby("seed")["_value"].mean()
+        per = group.groupby("seed")["_value"]
+        out[(str(model), int(replicate))] = (
+            per.sum() if claim.per_seed == "sum" else per.mean()
+        ).astype(float)
     return out
 
 
 def _pair_effects(
-    per: Mapping[tuple[str, int], pd.Series],
-    a: str,
-    b: str,
-    effect: Callable[[pd.Series, pd.Series], pd.Series],
+    per: Mapping[tuple[str, int], pd.Series], pair: Pair, claim: ClosedLoopClaim
 ) -> Effects:
-    """Replicate → the effect of model ``a`` against ``b`` on their common seeds."""
+    """Replicate → the effect of model a against b on their common seeds."""
     out: Effects = {}
     for (model, replicate), values in per.items():
-        if model != a or (b, replicate) not in per:
+        if model != pair.a or (pair.b, replicate) not in per:
             continue
-        other = per[(b, replicate)]
+        other = per[(pair.b, replicate)]
         common = values.index.intersection(other.index)
-        diff = effect(values[common], other[common])
+        diff = claim.effect.of(values[common], other[common])
         out[replicate] = [float(v) for v in diff if math.isfinite(v)]
     return out
 
@@ -93,326 +124,231 @@ def _mean_of(per: Mapping[tuple[str, int], pd.Series], model: str) -> float:
     return float(np.mean(values)) if values else math.nan
 
 
-def _verdicts(
-    effects: Effects, paper_sign: float, replicates: Sequence[int], trained: set[int]
-) -> dict[str, Any]:
-    """The interval pooled over every replicate, and the verdicts: per replicate, pooled and
-    pooled over the replicates that trained."""
-    pooled = interval(effects)
-    row: dict[str, Any] = {
-        "ci95_low": pooled.low,
-        "ci95_high": pooled.high,
-        "estimate": pooled.estimate,
-        "replicates": pooled.replicates,
-        SPANS: {"pooled": pooled},
-    }
-    for r in replicates:
-        span = interval({r: effects[r]}) if r in effects else None
-        row[f"verdict rep{r}"] = INCONCLUSIVE if span is None else verdict(span, paper_sign)
-        if span is not None:
-            row[SPANS][f"rep{r}"] = span
-    row["verdict"] = verdict(pooled, paper_sign)
-    kept = {r: v for r, v in effects.items() if r in trained}
-    row["verdict trained"] = verdict(interval(kept), paper_sign) if kept else INCONCLUSIVE
-    return row
+def _both(pair: Pair, a: float, b: float) -> str:
+    """The two models' own values, as ``ours`` prints them beside the effect."""
+    return f"{pair.a.upper()} {a:.3g}, {pair.b.upper()} {b:.3g}"
 
 
-def _trained(context: Context, models: Sequence[str], replicates: Sequence[int]) -> set[int]:
-    """The replicates in which none of ``models`` failed to train."""
-    return {r for r in replicates if not any(m in context.failed.get(r, {}) for m in models)}
+def _trained(context: Context, pair: Pair, replicates: Sequence[int]) -> list[int]:
+    """The draws in which neither model of the pair failed to train."""
+    return [
+        r for r in replicates if not any(m in context.failed.get(r, {}) for m in (pair.a, pair.b))
+    ]
 
 
-def _failed_note(context: Context, models: Sequence[str]) -> str:
-    """The failed trainings among ``models`` (their reasons are in table 4 and RESULTS.md)."""
+def _failed_note(context: Context, pair: Pair) -> str:
+    """The failed trainings among the pair's models (their reasons: table 4, RESULTS.md)."""
     notes = []
-    for m in models:
+    for m in (pair.a, pair.b):
         reps = sorted(r for r, failed in context.failed.items() if m in failed)
         if reps:
             notes.append(f"{m.upper()} replicate {', '.join(map(str, reps))}")
     return f"training failed: {'; '.join(notes)}" if notes else ""
 
 
-def _closed_loop_why(row: Mapping[str, Any], replicates: Sequence[int], extra: str) -> str:
-    """What is measured about a closed-loop row that does not hold: whether the replicates
-    disagree (the draw decides it) or each is within its seeds' spread, and ``extra``."""
-    per = [row.get(f"verdict rep{r}", INCONCLUSIVE) for r in replicates]
-    if row["verdict"] == INCONCLUSIVE:
+def _verdicts(
+    ev: _Evaluation, effects: Effects, pair: Pair
+) -> tuple[dict[str, Any], dict[str, Interval]]:
+    """The row's interval and verdicts: over the draws (or this draw's seeds), per draw, over
+    the draws that trained, and the draws needed when undecided."""
+    sign = float(np.sign(pair.paper_effect))
+    pooled = interval(effects, LEVEL)
+    spans = {"pooled": pooled}
+    row: dict[str, Any] = {
+        "ci95_low": pooled.low,
+        "ci95_high": pooled.high,
+        "estimate": pooled.estimate,
+        "draws": pooled.replicates,
+    }
+    means = draw_effects(effects)
+    for r in ev.replicates:
+        row[f"effect rep{r}"] = means.get(r, math.nan)
+        span = interval({r: effects[r]}, LEVEL) if r in effects else None
+        row[f"verdict rep{r}"] = INCONCLUSIVE if span is None else verdict(span, sign)
+        if span is not None:
+            spans[f"rep{r}"] = span
+    row["verdict"] = verdict(pooled, sign)
+    kept = {r: effects[r] for r in _trained(ev.context, pair, ev.replicates) if r in effects}
+    enough = len(kept) >= min(2, len(ev.replicates))  # a class verdict needs two draws
+    row["verdict trained"] = (
+        verdict(interval(kept, LEVEL), sign) if kept and enough else INCONCLUSIVE
+    )
+    undecided = row["verdict"] == INCONCLUSIVE
+    settings = ev.settings
+    row["draws needed"] = (
+        draws_needed(pooled, LEVEL, settings.power, settings.most_draws) if undecided else ""
+    )
+    return row, spans
+
+
+def _why(ev: _Evaluation, row: Mapping[str, Any], pair: Pair, causes: Sequence[str]) -> str:
+    """The measured cause of a row that does not hold: how the draws' verdicts stand, the
+    claim's own causes and the failed trainings involved."""
+    if row["verdict"] == HOLDS:
+        return ""
+    notes = [c for c in (*causes, _failed_note(ev.context, pair)) if c]
+    per = [row.get(f"verdict rep{r}", INCONCLUSIVE) for r in ev.replicates]
+    if row["verdict"] == INCONCLUSIVE and row["ci95_low"] == row["ci95_high"] == 0:
+        cause = "a tie: no difference in any draw or seed"
+    elif row["verdict"] == INCONCLUSIVE and len(ev.replicates) > 1:
         if len(set(per)) > 1:
-            said = ", ".join(f"rep{r} {v}" for r, v in zip(replicates, per, strict=True))
+            said = ", ".join(f"rep{r} {v}" for r, v in zip(ev.replicates, per, strict=True))
             cause = f"the training draws disagree ({said})"
+        elif per[0] != INCONCLUSIVE:
+            cause = (
+                f"every network's verdict is {per[0]}, but {row['draws']} draws this far apart "
+                "do not decide the class"
+            )
         else:
-            cause = "within the spread of the seeds in every replicate"
+            cause = "within the spread of the seeds in every draw"
+    elif row["verdict"] == INCONCLUSIVE:
+        cause = "within the spread of the seeds"
     else:
         cause = "not explained"
-    return f"{cause}; {extra}" if extra else cause
+    return "; ".join([cause, *notes])
 
 
-def _row(
-    claim: str, comparison: str, paper_value: float | str, ours: str, verdicts: Mapping[str, Any]
-) -> dict[str, Any]:
-    return {
-        "claim": claim,
-        "comparison": comparison,
-        "paper": paper_value,
-        "ours": ours,
-        **verdicts,
-    }
-
-
-def _sign(x: float) -> float:
-    return float(np.sign(x))
-
-
-def learned_claims(runs: pd.DataFrame, context: Context | None = None) -> list[dict]:
-    """The closed-loop claims on the paper's study (``runs``: its runs, every replicate and
-    seed; a ``replicate`` column, 0 when absent)."""
-    context = context or Context()
-    if runs.empty:
-        return []
-    runs = runs if "replicate" in runs else runs.assign(replicate=0)
-    replicates = sorted(int(r) for r in runs["replicate"].unique())
-    rows: list[dict] = []
-
-    def add(
-        claim: str,
-        a: str,
-        b: str,
-        paper_a: float,
-        paper_b: float,
-        per: Mapping[tuple[str, int], pd.Series],
-        effect,
-        paper_effect: float,
-        unit: str,
-        why: Callable[[str], str],
-    ) -> None:
-        effects = _pair_effects(per, a, b, effect)
-        if not effects:
-            return
-        trained = _trained(context, (a, b), replicates)
-        v = _verdicts(effects, _sign(paper_effect), replicates, trained)
-        values = f"{a.upper()} {_mean_of(per, a):.3g}, {b.upper()} {_mean_of(per, b):.3g}"
-        ours = f"{v['estimate']:.3g}{unit} ({values})"
-        row = _row(
-            claim,
-            f"{a.upper()} − {b.upper()}" if unit != " %" else f"{a.upper()} vs {b.upper()}",
-            f"{paper_effect:.3g}{unit} ({a.upper()} {paper_a:g}, {b.upper()} {paper_b:g})"
-            if unit != " %"
-            else f"{paper_effect:+.3g} %",
-            ours,
-            v,
-        )
-        if row["verdict"] == HOLDS:
-            row["why"] = ""
-        else:
-            notes = [n for n in (why(row["verdict"]), _failed_note(context, (a, b))) if n]
-            row["why"] = _closed_loop_why(row, replicates, "; ".join(notes))
-        row["_paper_effect"] = paper_effect
-        rows.append(row)
-
-    # 1. adaptive NMPC, failure-penalised lap time averaged over η
-    adaptive = runs[runs["controller"] == "anmpc"]
-    per = _per(adaptive, adaptive["lap_time_penalised"])
-    order = ("epm", "ddm", "dpm")
-    for a, b in itertools.combinations(order, 2):
-        pa, pb = paper.ADAPTIVE_LAP_TIME[a], paper.ADAPTIVE_LAP_TIME[b]
-        add(
-            "adaptive NMPC lap time, penalised, mean over η (s): EPM < DDM < DPM",
-            a,
-            b,
-            pa,
-            pb,
-            per,
-            lambda x, y: x - y,
-            pa - pb,
-            " s",
-            lambda v: _lap_time_note(context),
-        )
-    # 2. EPM against DPM and DDM at η = 1, averaged over the controllers
-    at1 = runs[runs["eta"] == 1.0]
-    if not at1.empty:
-        for metric, anchors in paper.ETA1_RELATIVE.items():
-            per = _per(at1, at1[metric])
-            for other, value in anchors.items():
-                add(
-                    f"η = 1, mean over controllers: {metric} (%)",
-                    "epm",
-                    other,
-                    math.nan,
-                    math.nan,
-                    per,
-                    lambda x, y: 100 * (x - y) / y,
-                    value,
-                    " %",
-                    lambda v: "",
-                )
-    # 3. NMPC-family failures over the η grid
-    nmpc = runs[runs["controller"].isin(NMPCS)]
-    total = len(nmpc[["controller", "eta"]].drop_duplicates())
-    per = _fail_counts(nmpc)
-    for other in ("ddm", "dpm"):
-        pa, pb = paper.NMPC_FAILURES["epm"], paper.NMPC_FAILURES[other]
-        add(
-            f"NMPC-family failures of {total} runs: EPM fewest",
-            "epm",
-            other,
-            pa,
-            pb,
-            per,
-            lambda x, y: x - y,
-            pa - pb,
-            "",
-            lambda v: "",
-        )
-    return rows
-
-
-def _fail_counts(nmpc: pd.DataFrame) -> dict[tuple[str, int], pd.Series]:
-    """(model, replicate) → failures per seed over the NMPC runs of the η grid."""
-    fails = ~nmpc["success"].astype(bool)
-    out = {}
-    for (model, replicate), group in nmpc.assign(_f=fails).groupby(["model", "replicate"]):
-        out[(str(model), int(replicate))] = group.groupby("seed")["_f"].sum().astype(float)
-    return out
-
-
-def _lap_time_note(context: Context) -> str:
-    """Why our lap times are not the paper's: the reference's own ideal lap."""
-    if context.ideal_lap_time is None:
-        return ""
-    return (
-        f"our laps are bounded by the reference's ideal lap, {context.ideal_lap_time:.2f} s at "
-        "its speed profile; the paper's 5.6–5.8 s lie below it"
+def _not_evaluated(ev: _Evaluation, claim: str, comparison: str, paper: str, why: str) -> None:
+    """A row the study cannot evaluate: listed, with why, never dropped."""
+    verdicts = {f"verdict rep{r}": NOT_EVALUATED for r in ev.replicates}
+    ev.rows.append(
+        {
+            "claim": claim,
+            "comparison": comparison,
+            "paper": paper,
+            "ours": "–",
+            **verdicts,
+            "verdict": NOT_EVALUATED,
+            "verdict trained": NOT_EVALUATED,
+            "draws needed": "",
+            "why": f"{NOT_EVALUATED}: {why}",
+        }
     )
 
 
-def bicycle_claims(best: pd.DataFrame, labels: Mapping[str, str]) -> list[dict]:
-    """The best fixed-parameter bicycle controller per model (table 5 against the paper):
-    replicate 0's bicycle study, a deterministic row (holds or contradicted)."""
-    rows = []
+def _closed_loop(ev: _Evaluation, runs: pd.DataFrame, claim: ClosedLoopClaim) -> None:
+    selected = claim.select(runs)
+    per = _per_seed(selected, claim) if len(selected) else {}
+    cells = len(selected[["controller", "eta"]].drop_duplicates()) if len(selected) else 0
+    name = claim.name.format(cells=cells)
+    for pair in claim.pairs:
+        comparison = f"{pair.a.upper()}{claim.effect.joiner}{pair.b.upper()}"
+        effects = _pair_effects(per, pair, claim)
+        if not any(effects.values()):
+            missing = [m.upper() for m in (pair.a, pair.b) if not any(k[0] == m for k in per)]
+            if len(selected) and not missing:
+                why = f"no finite {claim.metric} effect on common seeds"
+            else:
+                whose = f" of {' or '.join(missing)}" if len(selected) else ""
+                why = f"the paper's study has no {claim.select.what}{whose}"
+            _not_evaluated(ev, name, comparison, pair.paper_text, why)
+            continue
+        verdicts, spans = _verdicts(ev, effects, pair)
+        values = _both(pair, _mean_of(per, pair.a), _mean_of(per, pair.b))
+        row = {
+            "claim": name,
+            "comparison": comparison,
+            "paper": pair.paper_text,
+            "ours": f"{verdicts['estimate']:.3g}{claim.unit} ({values})",
+            **verdicts,
+        }
+        row["why"] = _why(ev, row, pair, [cause(ev.context, pair) for cause in claim.causes])
+        ev.rows.append(row)
+        ev.spans += [
+            {
+                "claim": name,
+                "comparison": row["comparison"],
+                "scope": scope,
+                "estimate": s.estimate,
+                "low": s.low,
+                "high": s.high,
+                "paper": pair.paper_effect,
+            }
+            for scope, s in spans.items()
+            if len(ev.replicates) > 1 or scope != "pooled"  # one draw: its own interval alone
+        ]
+
+
+def _model(ev: _Evaluation, claim: ModelClaim, tables: Mapping[int, pd.DataFrame]) -> None:
+    if not tables:
+        return
+    per = {r: t.set_index("model")[claim.column] for r, t in tables.items() if claim.column in t}
+    source = "table 1" if claim.table == "complexity" else "table 4"
+    for pair in claim.pairs:
+        comparison = f"{pair.a.upper()} − {pair.b.upper()}"
+        absent = [
+            m.upper() for m in (pair.a, pair.b) if not all(m in p.index for p in per.values())
+        ]
+        if not per or absent:
+            why = (
+                f"{source} has no {claim.column}"
+                if not per
+                else f"{source} has no {' or '.join(absent)}"
+            )
+            _not_evaluated(ev, claim.name, comparison, pair.paper_text, why)
+            continue
+        effects = {r: [float(p[pair.a] - p[pair.b])] for r, p in per.items()}
+        mean_a = float(np.mean([p[pair.a] for p in per.values()]))
+        mean_b = float(np.mean([p[pair.b] for p in per.values()]))
+        if claim.exact:
+            value = effects[min(effects)][0]
+            v = exact_verdict(value, float(np.sign(pair.paper_effect)))
+            verdicts = {
+                "estimate": value,
+                "ci95_low": value,
+                "ci95_high": value,
+                "draws": len(per),
+                **{f"effect rep{r}": effects[r][0] for r in ev.replicates if r in effects},
+                **{f"verdict rep{r}": v for r in ev.replicates},
+                "verdict": v,
+                "verdict trained": v,
+                "draws needed": "",
+            }
+        else:
+            verdicts, _ = _verdicts(ev, effects, pair)
+        row = {
+            "claim": claim.name,
+            "comparison": comparison,
+            "paper": pair.paper_text,
+            "ours": f"{verdicts['estimate']:.3g} ({_both(pair, mean_a, mean_b)})",
+            **verdicts,
+        }
+        row["why"] = _why(ev, row, pair, [cause(ev.context, pair) for cause in claim.causes])
+        ev.rows.append(row)
+
+
+def _bicycle(
+    ev: _Evaluation, claim: BicycleClaim, best: pd.DataFrame, labels: Mapping[str, str]
+) -> None:
     inverse = {v: k for k, v in labels.items()}
-    for model, anchor in paper.BEST_BICYCLE.items():
-        match = best[best["model"] == f"{model}-fixed"]
+    for model, anchor in claim.best.items():
+        name = labels.get(str(anchor["controller"]), str(anchor["controller"]))
+        paper = f"{name}, η ≤ {anchor['max_eta']:g}, {anchor['lap_time']:.2f} s"
+        match = best[best["model"] == f"{model}-fixed"] if "model" in best else best
         if match.empty:
+            why = f"no bicycle study of {model.upper()}-fixed in the config"
+            _not_evaluated(ev, claim.name, f"{model.upper()} (fixed)", paper, why)
             continue
         r = match.iloc[0]
-        ours = f"{r['best controller']}, η ≤ {r['max η completed']:g}, {r['lap time (s)']:.2f} s"
         same = inverse.get(r["best controller"], r["best controller"]) == anchor["controller"]
-        name = labels.get(anchor["controller"], anchor["controller"])
-        paper_text = f"{name}, η ≤ {anchor['max_eta']:g}, {anchor['lap_time']:.2f} s"
         v = HOLDS if same else CONTRADICTED
-        rows.append(
-            _row(
-                "best bicycle controller (replicate 0)",
-                f"{model.upper()} (fixed)",
-                paper_text,
-                ours,
-                {
-                    "replicates": 1,
-                    "verdict rep0": v,
-                    "verdict": v,
-                    "verdict trained": v,
-                    "why": "" if same else "not explained",
-                },
-            )
+        ev.rows.append(
+            {
+                "claim": claim.name,
+                "comparison": f"{model.upper()} (fixed)",
+                "paper": paper,
+                "ours": (
+                    f"{r['best controller']}, η ≤ {r['max η completed']:g}, "
+                    f"{r['lap time (s)']:.2f} s"
+                ),
+                "draws": 1,
+                "verdict rep0": v,
+                "verdict": v,
+                "verdict trained": v,
+                "draws needed": "",
+                "why": "" if same else "not explained",
+            }
         )
-    return rows
-
-
-MODEL_ROWS = (
-    # column of table 1 or 4, claim, table, deterministic (the architecture's) or measured
-    ("params_M", "model complexity: parameters (M)", "complexity", True),
-    ("size_MB", "model complexity: size (MB)", "complexity", True),
-    ("flops_M", "model complexity: FLOPs (M)", "complexity", True),
-    ("inference_ms", "model complexity: inference (ms)", "complexity", False),
-    ("test_rmse_vx", "open-loop RMSE vx (ETHZMobil)", "openloop", False),
-    ("test_rmse_vy", "open-loop RMSE vy (ETHZMobil)", "openloop", False),
-    ("test_rmse_omega", "open-loop RMSE ω (ETHZMobil)", "openloop", False),
-)
-
-
-def _paper_model_value(column: str, model: str) -> float:
-    if column.startswith("test_rmse_"):
-        return paper.OPENLOOP_RMSE[model][column.removeprefix("test_rmse_")]
-    return paper.COMPLEXITY[model][column]
-
-
-def model_claims(
-    complexity: Mapping[int, pd.DataFrame],
-    openloop: Mapping[int, pd.DataFrame],
-    context: Context | None = None,
-) -> list[dict]:
-    """Complexity and open-loop error, per pair in the paper's order: parameter counts, sizes
-    and FLOPs are exact; inference times and errors vary over replicates (``complexity`` and
-    ``openloop``: replicate → table 1 or table 4)."""
-    context = context or Context()
-    rows = []
-    replicates = sorted(set(complexity) | set(openloop))
-    for column, claim, table, exact in MODEL_ROWS:
-        tables = complexity if table == "complexity" else openloop
-        per = {r: t.set_index("model")[column] for r, t in tables.items()}
-        models = [m for m in paper.COMPLEXITY if all(m in p.index for p in per.values())]
-        if not per or len(models) < 2:
-            continue
-        paper_order = sorted(models, key=lambda m: _paper_model_value(column, m))
-        label = f"{claim}: " + " < ".join(m.upper() for m in paper_order)
-        for a, b in itertools.combinations(paper_order, 2):
-            effects = {r: [float(p[a] - p[b])] for r, p in per.items()}
-            mean_a = float(np.mean([p[a] for p in per.values()]))
-            mean_b = float(np.mean([p[b] for p in per.values()]))
-            pa, pb = _paper_model_value(column, a), _paper_model_value(column, b)
-            if exact:
-                value = effects[replicates[0]][0] if replicates else math.nan
-                v = exact_verdict(value, -1.0)
-                verdicts = {
-                    "estimate": value,
-                    "ci95_low": value,
-                    "ci95_high": value,
-                    "replicates": len(per),
-                    "verdict": v,
-                    "verdict trained": v,
-                    **{f"verdict rep{r}": v for r in replicates},
-                }
-            else:
-                trained = _trained(context, (a, b), replicates)
-                verdicts = _verdicts(effects, -1.0, replicates, trained)
-            row = _row(
-                label,
-                f"{a.upper()} − {b.upper()}",
-                f"{pa - pb:.3g} ({a.upper()} {pa:g}, {b.upper()} {pb:g})",
-                f"{verdicts['estimate']:.3g} ({a.upper()} {mean_a:.3g}, {b.upper()} {mean_b:.3g})",
-                verdicts,
-            )
-            row["why"] = "" if row["verdict"] == HOLDS else _model_why(column, a, b, context)
-            rows.append(row)
-    return rows
-
-
-def _model_why(column: str, a: str, b: str, context: Context) -> str:
-    """The measured cause of a model row that does not hold."""
-    if column == "inference_ms":
-        return (
-            "hardware and implementation: timed on this CPU with CAPE's compiled Φ, one window "
-            "at a time; the paper's times come from another machine"
-        )
-    if column.startswith("test_rmse_"):
-        component = column.removeprefix("test_rmse_")
-        ratios = []
-        for model in (a, b):
-            values = [
-                float(t.set_index("model").loc[model, f"test_rmse_{component}"])
-                / float(t.set_index("model").loc[model, f"val_rmse_{component}"])
-                for t in context.openloop.values()
-                if model in set(t["model"]) and f"val_rmse_{component}" in t
-            ]
-            if values:
-                ratios.append(f"{model.upper()} {np.mean(values):.1f}×")
-        if ratios:
-            return (
-                "ETHZMobil extrapolation: the ETHZMobil error over the ETHZ validation error is "
-                + ", ".join(ratios)
-                + " (ETHZMobil's slip lies outside the training data's, SPEC §4.2)"
-            )
-    return "not explained"
 
 
 def evaluate_claims(
@@ -422,192 +358,103 @@ def evaluate_claims(
     complexity: Mapping[int, pd.DataFrame] | pd.DataFrame | None = None,
     openloop: Mapping[int, pd.DataFrame] | pd.DataFrame | None = None,
     context: Context | None = None,
+    settings: Settings | None = None,
+    claims: Sequence[ClosedLoopClaim] = CLOSED_LOOP,
+    model_claims: Sequence[ModelClaim] = MODEL,
+    bicycle: BicycleClaim | None = BICYCLE,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Table 8, every claim's rows (a table 1 or 4 given as one frame is replicate 0's), and
-    the closed-loop rows' effects with their intervals per replicate and pooled (figure 13:
-    claim, comparison, scope, estimate, low, high, paper)."""
-    context = context or Context()
-    if isinstance(complexity, pd.DataFrame):
-        complexity = {0: complexity}
-    if isinstance(openloop, pd.DataFrame):
-        openloop = {0: openloop}
+    """Table 8 (internal columns) for the paper's ``runs`` (every draw and seed; a table 1 or
+    4 given as one frame is replicate 0's), and the closed-loop rows' intervals per draw and
+    pooled (figure 13: claim, comparison, scope, estimate, low, high, paper)."""
+    complexity = {0: complexity} if isinstance(complexity, pd.DataFrame) else dict(complexity or {})
+    openloop = {0: openloop} if isinstance(openloop, pd.DataFrame) else dict(openloop or {})
+    context = context or Context(openloop=openloop)
     if openloop and not context.openloop:
-        context.openloop = openloop
-    closed = learned_claims(runs, context)
-    rows = closed + bicycle_claims(best_bicycle, labels)
-    if complexity and openloop:
-        rows += model_claims(complexity, openloop, context)
-    effects = pd.DataFrame(
-        [
-            {
-                "claim": r["claim"],
-                "comparison": r["comparison"],
-                "scope": scope,
-                "estimate": span.estimate,
-                "low": span.low,
-                "high": span.high,
-                "paper": r["_paper_effect"],
-            }
-            for r in closed
-            for scope, span in r[SPANS].items()
-        ],
-        columns=["claim", "comparison", "scope", "estimate", "low", "high", "paper"],
+        context = Context(context.ideal_lap_time, context.failed, openloop)
+    runs = runs if "replicate" in runs else runs.assign(replicate=0)
+    replicates = sorted(
+        {int(r) for r in runs["replicate"].unique()} | set(complexity) | set(openloop)
     )
-    table = pd.DataFrame([{k: v for k, v in r.items() if not k.startswith("_")} for r in rows])
-    verdict_columns = sorted(c for c in table.columns if c.startswith("verdict rep"))
-    first = ["claim", "comparison", "paper", "ours", "ci95_low", "ci95_high", "replicates"]
-    order = first + verdict_columns + ["verdict", "verdict trained", "why"]
+    ev = _Evaluation(replicates, context, settings or Settings(), [], [])
+    if not runs.empty:
+        for claim in claims:
+            _closed_loop(ev, runs, claim)
+    if bicycle is not None:
+        _bicycle(ev, bicycle, best_bicycle, labels)
+    for claim in model_claims:
+        _model(ev, claim, complexity if claim.table == "complexity" else openloop)
+    table = pd.DataFrame(ev.rows)
+    order = [
+        "claim",
+        "comparison",
+        "paper",
+        "ours",
+        "ci95_low",
+        "ci95_high",
+        "estimate",
+        "draws",
+        *(f"effect rep{r}" for r in replicates),
+        *(f"verdict rep{r}" for r in replicates),
+        "verdict",
+        "verdict trained",
+        "draws needed",
+        "why",
+    ]
+    numeric = ("ci95_low", "ci95_high", "estimate", "draws")
     for column in order:
         if column not in table:
-            table[column] = "" if column.startswith("verdict") or column == "why" else math.nan
+            table[column] = math.nan if column in numeric or column.startswith("effect") else ""
     table = table[order]
-    # a row about replicate 0 alone (the bicycle study's) has no verdict in the others (a word
-    # no CSV reader takes for a missing value, as it would "n/a")
-    return table.fillna({c: NOT_RUN for c in verdict_columns}), effects
+    verdict_columns = [f"verdict rep{r}" for r in replicates]
+    # a row about replicate 0 alone (the bicycle study's) has no verdict in the other draws (a
+    # word no CSV reader takes for a missing value, as it would "n/a")
+    table[verdict_columns] = table[verdict_columns].fillna(NOT_RUN)
+    columns = ["claim", "comparison", "scope", "estimate", "low", "high", "paper"]
+    return table, pd.DataFrame(ev.spans, columns=columns)
 
 
-def claim_verdicts(table: pd.DataFrame, column: str = "verdict") -> pd.Series:
-    """Per claim, its pairwise rows combined (``cape.study.verdicts.combine``)."""
-    return table.groupby("claim", sort=False)[column].agg(lambda v: combine(list(v)))
+def draws_of(table: pd.DataFrame) -> list[int]:
+    """The training draws a table 8 was evaluated over (from its ``verdict rep<r>`` columns)."""
+    return [
+        int(c.removeprefix("verdict rep")) for c in table.columns if c.startswith("verdict rep")
+    ]
 
 
-def holds_everywhere(table: pd.DataFrame) -> pd.Series:
-    """Rows that hold in every replicate they were measured in (``not run`` elsewhere)."""
+def one_draw(table: pd.DataFrame) -> bool:
+    """Whether a table 8 rests on one training draw (its verdicts are about those networks)."""
+    return len(draws_of(table)) <= 1
+
+
+def presented(table: pd.DataFrame) -> pd.DataFrame:
+    """Table 8 as written and shown: with one draw its verdict is "this training draw"'s (no
+    per-draw or draws-needed columns); with several, the class verdict over the draws beside
+    each draw's verdict about its one network."""
+    draws = draws_of(table)
+    if len(draws) <= 1:
+        keep = ["claim", "comparison", "paper", "ours", "ci95_low", "ci95_high", "verdict", "why"]
+        return table[keep].rename(columns={"verdict": "verdict (this training draw)"})
+    renamed = {f"verdict rep{r}": f"verdict rep{r} (this network)" for r in draws}
+    renamed |= {
+        "verdict": f"verdict ({len(draws)} draws)",
+        "verdict trained": "verdict (draws that trained)",
+    }
+    return table.drop(columns=["estimate"]).rename(columns=renamed)
+
+
+def holds_for_every_network(table: pd.DataFrame) -> pd.Series:
+    """Rows whose verdict holds for every trained network they were measured on."""
     reps = [c for c in table.columns if c.startswith("verdict rep")]
-    if not reps:
-        return table["verdict"].eq(HOLDS)
     verdicts = table[reps]
     return verdicts.isin([HOLDS, NOT_RUN]).all(axis=1) & verdicts.eq(HOLDS).any(axis=1)
 
 
 def counts(table: pd.DataFrame) -> dict[str, int]:
-    """How many rows hold in every replicate, are contradicted in any, are inconclusive pooled."""
+    """How many rows hold, are contradicted, are inconclusive (over the draws, or for this one
+    draw), and how many hold for every network or are contradicted for any."""
     reps = [c for c in table.columns if c.startswith("verdict rep")]
-    every = holds_everywhere(table)
-    anywhere = (
-        table[reps].eq(CONTRADICTED).any(axis=1) if reps else table["verdict"].eq(CONTRADICTED)
-    )
-    return {
-        "rows": len(table),
-        "hold in every replicate": int(every.sum()),
-        "contradicted in any replicate": int(anywhere.sum()),
-        "inconclusive pooled": int(table["verdict"].eq(INCONCLUSIVE).sum()),
-        **{f"pooled {v}": int(table["verdict"].eq(v).sum()) for v in VERDICTS},
-    }
-
-
-def at_a_glance(
-    table: pd.DataFrame,
-    runs: pd.DataFrame,
-    health: pd.DataFrame | None = None,
-    at_rest: tuple[pd.DataFrame, Sequence[str]] | None = None,
-) -> str:
-    """A one-page Markdown summary, written by the scorecard notebook to ``RESULTS.md``: first
-    the claims that hold in every replicate, those contradicted, those inconclusive; then what
-    ran, the trainings that failed, the laps without disturbances with the cause of every miss
-    (``at_rest``: ``cape.study.undisturbed.undisturbed``), and every row with its verdicts and
-    cause."""
-    replicates = sorted(int(r) for r in runs["replicate"].unique()) if "replicate" in runs else [0]
-    seeds = runs["seed"].nunique() if len(runs) else 0
-    reps = [c for c in table.columns if c.startswith("verdict rep")]
-    every = holds_everywhere(table)
-    lines = [
-        "# CAPE results at a glance",
-        "",
-        f"{len(runs)} closed-loop runs, training replicate(s) {', '.join(map(str, replicates))}, "
-        f"{seeds} seed(s); table 8 (`table08_scorecard.md`). A verdict is `holds` when the 95 % "
-        "interval of the effect lies wholly on the paper's side, `contradicted` when wholly on "
-        "the other, `inconclusive` when it contains zero; pooled intervals resample the "
-        "replicates, then the seeds within each (docs/study.md). Nothing is tuned toward the "
-        "paper.",
-        "",
-    ]
-    sections = (
-        ("Holds in every replicate", every),
-        ("Contradicted (pooled)", table["verdict"].eq(CONTRADICTED)),
-        ("Inconclusive (pooled)", table["verdict"].eq(INCONCLUSIVE)),
-        ("Holds pooled, not in every replicate", table["verdict"].eq(HOLDS) & ~every),
-    )
-    for title, mask in sections:
-        lines += [f"## {title}: {int(mask.sum())} of {len(table)} rows", ""]
-        for row in table[mask].itertuples(index=False):
-            cause = f" — {row.why}" if row.why else ""
-            lines.append(
-                f"- {row.claim}, {row.comparison}: ours {row.ours}, paper {row.paper}{cause}"
-            )
-        lines.append("")
-    if health is not None and len(health):
-        failed = health[~health["trained"]]
-        lines += ["## Trainings", ""]
-        for model, group in health.groupby("model", sort=False):
-            bad = group[~group["trained"]]
-            lines.append(
-                f"- {model.upper()}: {len(bad)} of {len(group)} replicate(s) failed to train"
-                + "".join(f"; replicate {r.replicate}: {r.reason}" for r in bad.itertuples())
-            )
-        if failed.empty:
-            lines.append("- every replicate trained")
-        lines.append("")
-    if at_rest is not None and len(at_rest[0]):
-        grid, causes = at_rest
-        lines += [
-            "## Without disturbances (η = 0): laps per replicate and plant",
-            "",
-            to_markdown(grid),
-            *(f"- {c}" for c in causes),
-            *([""] if causes else []),
-        ]
-    lines += ["## Runs", "", "| study | runs | laps completed |", "|---|---|---|"]
-    for study, group in runs.groupby("study", sort=False):
-        lines.append(f"| {study} | {len(group)} | {group['success'].mean():.0%} |")
-    lines += ["", "## Every row", ""]
-    header = ["claim", "comparison", "paper", "ours", "95 % CI", *reps, "pooled", "trained", "why"]
-    lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for row in table.to_dict("records"):
-        ci = "–" if pd.isna(row["ci95_low"]) else f"[{row['ci95_low']:.3g}, {row['ci95_high']:.3g}]"
-        cells = [
-            row["claim"],
-            row["comparison"],
-            row["paper"],
-            row["ours"],
-            ci,
-            *(row[r] for r in reps),
-            row["verdict"],
-            row["verdict trained"],
-            row["why"] or "",
-        ]
-        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
-    return "\n".join(lines) + "\n"
-
-
-def read_replicate_tables(paths: str | Sequence[str]) -> dict[int, pd.DataFrame]:
-    """Replicate → table, from ``results/tables/rep<r>/<table>.csv`` paths (comma-separated in
-    a notebook's parameter)."""
-    import re
-    from pathlib import Path
-
-    items = paths.split(",") if isinstance(paths, str) else list(paths)
-    tables = {}
-    for item in (p for p in items if p):
-        match = re.fullmatch(r"rep([0-9]+)", Path(item).parent.name)
-        if match is None:
-            raise ValueError(f"{item}: not a replicate's table (…/rep<r>/<table>.csv)")
-        tables[int(match.group(1))] = pd.read_csv(item)
-    return tables
-
-
-def read_trainings(
-    model_root: str, replicates: Sequence[int], models: Sequence[str]
-) -> tuple[dict[tuple[int, str], pd.DataFrame], dict[tuple[int, str], float]]:
-    """(replicate, model) → loss.csv and → meta.json's best validation loss, for the training
-    checks of ``cape.models.health``."""
-    import json
-    from pathlib import Path
-
-    losses, best = {}, {}
-    for r in replicates:
-        for m in models:
-            folder = Path(model_root, f"rep{r}", m)
-            losses[(r, m)] = pd.read_csv(folder / "loss.csv")
-            best[(r, m)] = float(json.loads((folder / "meta.json").read_text())["best_val_loss"])
-    return losses, best
+    kinds = (*VERDICTS, NOT_EVALUATED)
+    out = {"rows": len(table), **{v: int(table["verdict"].eq(v).sum()) for v in kinds}}
+    if len(reps) > 1:
+        out["hold for every network"] = int(holds_for_every_network(table).sum())
+        out["contradicted for any network"] = int(table[reps].eq(CONTRADICTED).any(axis=1).sum())
+    return out

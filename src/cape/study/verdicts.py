@@ -1,20 +1,16 @@
-"""Three-valued verdicts from intervals that span training replicates and seeds (SPEC §10).
+"""Three-valued verdicts from intervals whose unit is the training draw (SPEC §10, turn 4).
 
 An effect (EPM's lap time minus DDM's, a relative error, a difference of failure counts) is
-measured once per (training replicate, disturbance seed). Its interval is a two-level
-bootstrap: each resample draws the replicates with replacement, then, within each drawn
-replicate, its seeds with replacement; the statistic is the mean over the drawn replicates of
-their seeds' mean, so a replicate weighs the same whatever its number of seeds. The 95 %
-interval is the 2.5 and 97.5 percentiles of the resampled statistic. With one replicate this
-is the ordinary bootstrap over seeds; with one value per replicate (an open-loop error), the
-bootstrap over replicates.
+measured once per (training draw, disturbance seed), the two models' runs paired by seed. The
+draw is the unit of a claim about a model class: each draw's effect is first averaged over its
+seeds, then the interval is Student's t over the draws' effects with R − 1 degrees of freedom
+(``scipy.stats.ttest_1samp``). With one draw the interval is over that draw's seeds (t, n − 1
+degrees of freedom): a statement about one trained network, never about its class. A single
+value, or values that do not vary, give a point.
 
-Why not a library's: ``scipy.stats.bootstrap`` resamples each of several samples
-independently (seeds within every replicate: the replicates themselves never resampled) and
-rliable's stratified bootstrap does the same within tasks. Both are one level; the
-between-replicate spread, which is the point of replicates, would be missing. The two-level
-draw is a few lines of NumPy with a seeded generator, checked against a case worked by hand
-and, for one replicate, against ``scipy.stats.bootstrap`` (tests/test_verdicts.py).
+Why not a bootstrap: a percentile bootstrap over three draws cannot estimate the spread between
+them; it excluded zero in 18–21 % of simulated null trials at R = 3 (docs/study.md, the
+calibration test in tests/test_verdicts.py). The t-interval stays at the nominal 5 %.
 
 A verdict compares the interval with zero on the paper's side: ``holds`` when it lies wholly
 there, ``contradicted`` when it lies wholly on the other side, ``inconclusive`` when it
@@ -29,27 +25,38 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import stats
 
 HOLDS, CONTRADICTED, INCONCLUSIVE = "holds", "contradicted", "inconclusive"
 VERDICTS = (HOLDS, CONTRADICTED, INCONCLUSIVE)
 
+DRAWS, SEEDS, POINT, NONE = "draws", "seeds", "point", "none"
+"""What an interval is taken over: the draws' effects, one draw's seeds, nothing that varies,
+no values at all."""
+
+NO_EFFECT = "no effect measured"
+
 
 @dataclass(frozen=True)
 class Interval:
-    """An effect's estimate (mean over replicates of their seeds' mean) and its interval."""
+    """An effect's estimate (the mean of the draws' effects), its interval, what the interval
+    is taken over (``unit``), how many draws and values it rests on and the spread of the
+    unit's values (the draws' effects, or one draw's seeds: ``sd``, ddof 1)."""
 
     estimate: float
     low: float
     high: float
     replicates: int
     values: int
+    unit: str = DRAWS
+    sd: float = math.nan
 
     def contains_zero(self) -> bool:
         return self.low <= 0.0 <= self.high
 
 
 def _groups(effects: Mapping[int, Sequence[float]]) -> list[np.ndarray]:
-    """The finite values of each replicate that has any."""
+    """The finite values of each draw that has any."""
     groups = []
     for values in effects.values():
         x = np.asarray([v for v in values if v is not None and math.isfinite(v)], dtype=float)
@@ -58,45 +65,43 @@ def _groups(effects: Mapping[int, Sequence[float]]) -> list[np.ndarray]:
     return groups
 
 
-def two_level_distribution(
-    effects: Mapping[int, Sequence[float]], resamples: int = 10_000, seed: int = 0
-) -> np.ndarray:
-    """The bootstrap distribution of the mean effect: replicates, then seeds within each
-    (``effects``: replicate → its per-seed values)."""
-    groups = _groups(effects)
-    if not groups:
-        return np.empty(0)
-    rng = np.random.default_rng(seed)
-    n = len(groups)
-    picks = rng.integers(0, n, size=(resamples, n))  # the replicates each resample draws
-    total = np.zeros(resamples)
-    for position in range(n):
-        for g, x in enumerate(groups):
-            chosen = np.flatnonzero(picks[:, position] == g)
-            if chosen.size:
-                inner = rng.integers(0, x.size, size=(chosen.size, x.size))
-                total[chosen] += x[inner].mean(axis=1)
-    return total / n
+def draw_effects(effects: Mapping[int, Sequence[float]]) -> dict[int, float]:
+    """Replicate → its effect averaged over its seeds (draws without a finite value left out)."""
+    out = {}
+    for replicate, values in effects.items():
+        x = _groups({replicate: values})
+        if x:
+            out[replicate] = float(x[0].mean())
+    return out
 
 
-def interval(
-    effects: Mapping[int, Sequence[float]],
-    level: float = 0.95,
-    resamples: int = 10_000,
-    seed: int = 0,
-) -> Interval:
-    """The effect's estimate and its two-level percentile interval (NaN without values)."""
+def t_interval(x: np.ndarray, level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+    """Student's t interval of the mean along the last axis of ``x`` (n − 1 degrees of
+    freedom), by ``scipy.stats.ttest_1samp``: one interval per row, so that the calibration
+    (cape.study.calibration) runs the very computation ``interval`` does on thousands of trials."""
+    ci = stats.ttest_1samp(x, 0.0, axis=-1).confidence_interval(confidence_level=level)
+    return np.asarray(ci.low), np.asarray(ci.high)
+
+
+def interval(effects: Mapping[int, Sequence[float]], level: float = 0.95) -> Interval:
+    """The effect's estimate and its ``level`` interval (``effects``: replicate → the effect's
+    values, one per seed or one for the draw): Student's t over the draws' means with two or
+    more draws, over the seeds with one; NaN without values."""
     groups = _groups(effects)
     values = sum(g.size for g in groups)
     if not groups:
-        return Interval(math.nan, math.nan, math.nan, 0, 0)
-    estimate = float(np.mean([g.mean() for g in groups]))
-    if all(np.all(g == g[0]) for g in groups) and len({float(g[0]) for g in groups}) == 1:
-        return Interval(estimate, estimate, estimate, len(groups), values)  # nothing varies
-    dist = two_level_distribution(effects, resamples, seed)
-    tail = 100 * (1 - level) / 2
-    low, high = np.percentile(dist, [tail, 100 - tail])
-    return Interval(estimate, float(low), float(high), len(groups), values)
+        return Interval(math.nan, math.nan, math.nan, 0, 0, NONE)
+    if len(groups) >= 2:
+        x, unit = np.array([g.mean() for g in groups]), DRAWS
+    else:
+        x, unit = groups[0], SEEDS
+    estimate = float(x.mean())
+    if x.size < 2 or np.ptp(x) <= 1e-12 * max(1.0, float(np.abs(x).max())):  # equal to rounding
+        return Interval(estimate, estimate, estimate, len(groups), values, POINT, 0.0)
+    low, high = t_interval(x, level)
+    return Interval(
+        estimate, float(low), float(high), len(groups), values, unit, float(x.std(ddof=1))
+    )
 
 
 def verdict(span: Interval, paper_sign: float) -> str:
@@ -124,3 +129,27 @@ def combine(verdicts: Iterable[str]) -> str:
     if all(v == HOLDS for v in seen):
         return HOLDS
     return CONTRADICTED if CONTRADICTED in seen else INCONCLUSIVE
+
+
+def draws_needed(span: Interval, level: float = 0.95, power: float = 0.8, most: int = 100) -> str:
+    """The training draws per model that would decide an effect with probability ``power`` at
+    α = 1 − ``level`` if its true size were the one measured (``span``: an interval over draws),
+    by the power of the one-sample t-test over the draws' effects (``statsmodels``); "> most"
+    beyond ``most`` draws, ``NO_EFFECT`` when the measured effect is zero. Planning for the next
+    study: adding draws until a row is decided would inflate its error rate (docs/study.md)."""
+    if span.unit == POINT and span.replicates >= 2 and span.estimate == 0:
+        return NO_EFFECT  # a tie in every draw and seed
+    if span.unit != DRAWS or not span.sd > 0:
+        return ""
+    size = abs(span.estimate) / span.sd  # Cohen's d of the draws' effects
+    if size < 1e-9:
+        return NO_EFFECT
+    from statsmodels.stats.power import TTestPower  # the scorecard's alone: imported here
+
+    # the power at every whole number of draws, the first that reaches ``power`` (statsmodels'
+    # own solve_power fails to converge for large effects, where the answer is 2 or 3 draws)
+    draws = np.arange(2, most + 1)
+    reached = np.flatnonzero(
+        TTestPower().power(effect_size=size, nobs=draws, alpha=1.0 - level) >= power
+    )
+    return str(int(draws[reached[0]])) if reached.size else f"> {most}"

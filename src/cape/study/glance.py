@@ -1,0 +1,135 @@
+"""RESULTS.md: a scope's scorecard on one page, written by the scorecard notebook.
+
+With several training draws it opens with the verdicts about the model classes (the t-interval
+over the draws, SPEC §10) and what each undecided row would need; with one draw it says that
+its verdicts are about those trained networks and where the class verdicts are built.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import pandas as pd
+
+from cape.study.scorecard import NOT_EVALUATED, draws_of, holds_for_every_network, presented
+from cape.study.verdicts import CONTRADICTED, HOLDS, INCONCLUSIVE
+from cape.tables import number_formats, to_markdown
+
+REPLICATES_COMMAND = "snakemake --cores 2 replicates"
+
+
+def _bullets(table: pd.DataFrame, mask: pd.Series, needed: bool = False) -> list[str]:
+    lines = []
+    for row in table[mask].to_dict("records"):
+        cause = f" — {row['why']}" if row["why"] else ""
+        more = f"; draws needed: {row['draws needed']}" if needed and row["draws needed"] else ""
+        said = f"{row['claim']}, {row['comparison']}: ours {row['ours']}, paper {row['paper']}"
+        lines.append(f"- {said}{more}{cause}")
+    return lines
+
+
+def _intro(table: pd.DataFrame, runs: pd.DataFrame) -> list[str]:
+    draws = draws_of(table)
+    seeds = runs["seed"].nunique() if len(runs) else 0
+    common = (
+        f"{len(runs)} closed-loop runs of the paper's study, {seeds} disturbance seed(s); table 8 "
+        "(`table08_scorecard.md`). A verdict is `holds` when the 95 % interval of the effect "
+        "lies wholly on the paper's side, `contradicted` when wholly on the other, "
+        "`inconclusive` when it contains zero (docs/study.md). Nothing is tuned toward the paper."
+    )
+    if len(draws) <= 1:
+        return [
+            f"**One training draw (replicate {draws[0] if draws else 0}).** Every verdict here "
+            "is about this training draw's networks, over the disturbance seeds: another training "
+            "seed or another CPU draws other networks, and the verdict may change. For verdicts "
+            f"about the model classes, over several draws, run `{REPLICATES_COMMAND}` "
+            "(`results/replicates/RESULTS.md`).",
+            "",
+            common,
+        ]
+    return [
+        f"**{len(draws)} training draws (replicates {', '.join(map(str, draws))}).** A verdict is "
+        "about the model class: each draw's effect is averaged over its seeds, and the interval is "
+        f"Student's t over the {len(draws)} draws' effects. Each draw's own verdict, over its "
+        "seeds, is a statement about that one trained network (the `rep<r>` columns).",
+        "",
+        common,
+    ]
+
+
+def at_a_glance(
+    table: pd.DataFrame,
+    runs: pd.DataFrame,
+    health: pd.DataFrame | None = None,
+    at_rest: tuple[pd.DataFrame, Sequence[str]] | None = None,
+) -> str:
+    """The page: the verdicts (over the draws, or for this one draw), what ran, the trainings
+    that failed, the laps without disturbances with the cause of every miss (``at_rest``:
+    ``cape.study.undisturbed.undisturbed``), and every row of table 8 as presented."""
+    several = len(draws_of(table)) > 1
+    scope = "over the training draws" if several else "for this training draw"
+    lines = ["# CAPE results at a glance", "", *_intro(table, runs), ""]
+    verdicts = table["verdict"]
+    lines += [f"## Holds {scope}: {int(verdicts.eq(HOLDS).sum())} of {len(table)} rows", ""]
+    lines += [*_bullets(table, verdicts.eq(HOLDS)), ""]
+    lines += [
+        f"## Contradicted {scope}: {int(verdicts.eq(CONTRADICTED).sum())} of {len(table)} rows",
+        "",
+    ]
+    lines += [*_bullets(table, verdicts.eq(CONTRADICTED)), ""]
+    lines += [
+        f"## Inconclusive {scope}: {int(verdicts.eq(INCONCLUSIVE).sum())} of {len(table)} rows",
+        "",
+    ]
+    if several:
+        lines += [
+            "Each undecided row gives the draws per model that would decide it with 80 % power at "
+            "α = 0.05 if its true effect were the one measured (`draws needed`). That number plans "
+            "the next study; adding draws until a row is decided would inflate its error rate.",
+            "",
+        ]
+    lines += [*_bullets(table, verdicts.eq(INCONCLUSIVE), needed=several), ""]
+    missing = verdicts.eq(NOT_EVALUATED)
+    if missing.any():
+        lines += [f"## Not evaluated: {int(missing.sum())} of {len(table)} rows", ""]
+        lines += [
+            *(
+                f"- {r['claim']}, {r['comparison']}: {r['why']}"
+                for r in table[missing].to_dict("records")
+            ),
+            "",
+        ]
+    if several:
+        every = holds_for_every_network(table)
+        lines += [
+            f"Per network: {int(every.sum())} of {len(table)} rows hold for every trained network "
+            "on its own seeds; a row can hold for each network and still be undecided for the "
+            "class when the draws lie far apart.",
+            "",
+        ]
+    if health is not None and len(health):
+        lines += ["## Trainings", ""]
+        for model, group in health.groupby("model", sort=False):
+            bad = group[~group["trained"]]
+            lines.append(
+                f"- {model.upper()}: {len(bad)} of {len(group)} replicate(s) failed to train"
+                + "".join(f"; replicate {r.replicate}: {r.reason}" for r in bad.itertuples())
+            )
+        if health["trained"].all():
+            lines.append("- every replicate trained")
+        lines.append("")
+    if at_rest is not None and len(at_rest[0]):
+        grid, causes = at_rest
+        lines += [
+            "## Without disturbances (η = 0): laps per replicate and plant",
+            "",
+            to_markdown(grid),
+            *(f"- {c}" for c in causes),
+            *([""] if causes else []),
+        ]
+    lines += ["## Runs", "", "| study | runs | laps completed |", "|---|---|---|"]
+    for study, group in runs.groupby("study", sort=False):
+        lines.append(f"| {study} | {len(group)} | {group['success'].mean():.0%} |")
+    every_row = presented(table)
+    lines += ["", "## Every row", "", to_markdown(every_row, number_formats(every_row))]
+    return "\n".join(lines) + "\n"
