@@ -346,6 +346,11 @@ def test_a_network_left_from_earlier_weights_is_refused(
     assert main([*freeze, "--config", str(setup["config"])]) == 0
     retrained = cape(*train, "--seed", "1")  # by hand, into the same folder
     assert retrained.returncode == 0, retrained.stderr
+    # another model into this model's folder: refused before anything is written
+    kept = {n: (folder / n).read_bytes() for n in ("model.pt", "meta.json", "loss.csv")}
+    other = cape(*[("ddm" if a == "dpm" else a) for a in train])
+    one_message(other, f"--out {folder}: holds a trained 'dpm', not 'ddm'", "nothing was changed")
+    assert {n: (folder / n).read_bytes() for n in kept} == kept
 
     def run(plant: str) -> subprocess.CompletedProcess:
         args = rollout_args(setup, tmp_path / plant, plant=plant)

@@ -227,6 +227,40 @@ def test_snakemake_refuses_an_unknown_grid_name_even_with_results_present(tmp_pa
     assert "names 'epn'" in out and "Traceback" not in out.split("names 'epn'")[0][-2000:]
 
 
+@pytest.mark.parametrize(
+    ("overlay", "message"),
+    [
+        ({"training": {"health": {"models": ["ddm", "epn"]}}},
+         "`training.health.models[1]` names 'epn', which the config does not define"),
+        ({"training": {"checkpoint_every": float("nan")}},
+         "`training.checkpoint_every` is nan, not a finite number"),
+        ({"rollout": {"penalty": {"lap_time": float("inf")}}},
+         "`rollout.penalty.lap_time` is inf, not a finite number"),
+    ],
+)  # fmt: skip
+def test_snakemake_refuses_a_misspelt_health_model_and_non_finite_numbers(
+    tmp_path: Path, overlay: dict, message: str
+) -> None:
+    """A misspelt model in the health checks flagged nothing without a word; .nan turned
+    checkpoints off; both are errors when the workflow is parsed."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(overlay))
+    result = _snakemake("-n", "--cores", "1", "--configfile", str(bad))
+    out = result.stdout + result.stderr
+    assert result.returncode != 0 and message in out, out[-3000:]
+
+
+def test_cape_train_refuses_a_non_finite_checkpoint_interval(tmp_path: Path) -> None:
+    result = subprocess.run(
+        ["cape", "train", "--model", "dpm", "--data", str(tmp_path / "none.npz"), "--out",
+         str(tmp_path / "m"), "--checkpoint-every", "nan"], capture_output=True, text=True,
+        timeout=120,
+    )  # fmt: skip
+    assert result.returncode == 2, result.stderr
+    assert "--checkpoint-every nan: give a finite number of at least 0" in result.stderr
+    assert not (tmp_path / "m").exists()
+
+
 # --- interruption ----------------------------------------------------------------------------
 def _planned_rollouts(dry_run_output: str) -> dict[str, str]:
     """The rollout jobs a dry run plans, as {metrics.json path: Snakemake's reason}."""

@@ -9,6 +9,7 @@ change in one section reruns only the jobs that read it.
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -141,6 +142,12 @@ def _check_grid(config: dict[str, Any], source: str) -> None:
                     f"but `training.replicates` is {replicates} (replicates 0 … "
                     f"{replicates - 1}); drop it or raise `training.replicates`"
                 )
+    for i, name in enumerate(config.get("training", {}).get("health", {}).get("models", [])):
+        if name not in config.get("models", {}):
+            raise CapeError(
+                f"{source}: field `training.health.models[{i}]` names {name!r}, which the config "
+                f"does not define; use one of {', '.join(config.get('models', {}))}"
+            )
     paper = config["study"].get("paper")
     if paper is not None and paper not in config["study"]["studies"]:
         raise CapeError(
@@ -196,8 +203,25 @@ def validate_config(config: dict[str, Any], source: str = "config") -> dict[str,
             f"{source}: field `{field}`: {first.message}{hint}{more}. "
             f"Fix the value; {SCHEMA_PATH.relative_to(REPO_ROOT)} describes every key."
         )
+    _check_finite(config, source)
     check_consistency(config, source)
     return config
+
+
+def _check_finite(value: Any, source: str, where: str = "") -> None:
+    """No setting takes NaN or an infinity (YAML's ``.nan``, ``.inf``), which JSON schema's
+    ``number`` admits and which would slip past every bound (``nan < 0`` is false)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise CapeError(
+            f"{source}: field `{where}` is {value}, not a finite number; give a finite value "
+            f"({SCHEMA_PATH.relative_to(REPO_ROOT)} describes every key)"
+        )
+    if isinstance(value, dict):
+        for key, item in value.items():
+            _check_finite(item, source, f"{where}.{key}" if where else str(key))
+    elif isinstance(value, list):
+        for i, item in enumerate(value):
+            _check_finite(item, source, f"{where}[{i}]")
 
 
 def load_config(path: str | Path = DEFAULT_CONFIG) -> dict[str, Any]:

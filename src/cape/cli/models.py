@@ -6,6 +6,7 @@ Each command's arguments are defined right above it (``@command``)."""
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 from typing import Any
 
@@ -94,10 +95,10 @@ def cmd_train(args: argparse.Namespace) -> None:
         "--checkpoint-every": (args.checkpoint_every, 0),
     }
     for option, (value, least) in counts.items():
-        if value is not None and value < least:
-            raise CapeError(f"{option} {value}: give a number of at least {least}")
+        if value is not None and not (math.isfinite(value) and value >= least):  # NaN too
+            raise CapeError(f"{option} {value}: give a finite number of at least {least}")
     spec = _model_spec(config, args.model)
-    _check_model_folder(Path(args.out))  # before the training, not after it
+    _check_model_folder(Path(args.out), args.model)  # before the training, not after it
     data_cfg, train_cfg = section(config, "data"), section(config, "training")
     seed = int(args.seed if args.seed is not None else train_cfg["seed"])
     data_path = Path(args.data)
@@ -184,10 +185,11 @@ def cmd_train(args: argparse.Namespace) -> None:
     )
 
 
-def _check_model_folder(out: Path) -> None:
+def _check_model_folder(out: Path, model: str) -> None:
     """``cape train`` replaces a model folder's ``model.pt``, ``meta.json`` and ``loss.csv``
-    only if they are a model CAPE wrote (its ``meta.json`` readable): never a user's files of
-    the same names, never a file given as the folder."""
+    only if they are the same model CAPE wrote (its ``meta.json`` readable and naming
+    ``model``): never a user's files of the same names, never another model's training, never
+    a file given as the folder."""
     from cape.models.trained import read_meta
 
     if out.exists() and not out.is_dir():
@@ -196,12 +198,18 @@ def _check_model_folder(out: Path) -> None:
     if not present:
         return
     try:
-        read_meta(out)
+        meta = read_meta(out)
     except CapeError as exc:
         raise CapeError(
             f"--out {out}: holds {', '.join(present)} that are not a model CAPE trained ({exc}); "
             "nothing was changed. Choose another folder, or delete those files"
         ) from None
+    if meta["name"] != model:
+        raise CapeError(
+            f"--out {out}: holds a trained {meta['name']!r}, not {model!r}; nothing was changed. "
+            f"Train {model!r} into its own folder (results/models/rep<r>/{model}), or delete "
+            "that folder first"
+        )
 
 
 def _freeze_arguments(p: argparse.ArgumentParser) -> None:
