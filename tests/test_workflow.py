@@ -166,13 +166,31 @@ def test_smoke_config_builds_the_model_tables(tmp_path: Path) -> None:
     )
 
 
+def _checkout(where: Path) -> Path:
+    """A copy of the workflow's files (Snakefile, rules, notebooks, config, profiles) at
+    ``where``, as a checkout there would have them (the package is the installed one)."""
+    for name in ("Snakefile", "workflow", "notebooks", "config", "profiles"):
+        source = REPO_ROOT / name
+        if source.is_dir():
+            shutil.copytree(source, where / name, ignore=shutil.ignore_patterns("__pycache__"))
+        else:
+            where.mkdir(parents=True, exist_ok=True)
+            shutil.copy(source, where / name)
+    return where
+
+
 def test_the_setup_notebook_shows_the_figure_and_tables_it_saves(tmp_path: Path) -> None:
-    """Through the real rule (papermill, then nbconvert): the executed notebook holds the saved
-    PNG itself, at 100 pixels per figure inch, and each table as its saved .md prints it; the
-    HTML copy embeds the same image and names the config sections instead of printing their
+    """Through the real rule (papermill, then nbconvert), from a checkout whose path has a
+    space (every path reaching a shell is quoted): the executed notebook holds the saved PNG
+    itself, at 100 pixels per figure inch, and each table as its saved .md prints it; the HTML
+    copy embeds the same image and names the config sections instead of printing their
     JSON."""
-    work = _workdir(tmp_path)
-    result = _snakemake("--cores", "1", "-d", str(work), "results/notebooks/setup.html")
+    checkout = _checkout(tmp_path / "my projects" / "cape")
+    work = _workdir(tmp_path / "my projects")
+    result = subprocess.run(
+        ["snakemake", "-s", str(checkout / "Snakefile"), "--cores", "1", "-d", str(work),
+         "results/notebooks/setup.html"], capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     notebook = work / "results/notebooks/setup.ipynb"
     figure = work / "results/figures/fig01_block_diagram.png"
@@ -366,6 +384,7 @@ def test_a_damaged_run_stops_what_reads_it_and_is_recomputed_once_deleted(
     assert drawn.returncode != 0 and str(rel_folder) in log and "truncated, damaged" in log, log
     assert not list((work / "results/notebooks").glob("*.part.ipynb"))
     assert (work / "results/logs/notebooks/learned.log.failed.ipynb").is_file()
+    assert "its executed copy, with the failing cell: results/logs/notebooks/learned.log" in log
     aggregated = _snakemake(*common, "-f", "results/study/runs.parquet", timeout=600)
     log = (work / "results/logs/study/aggregate.log").read_text()
     assert aggregated.returncode != 0 and str(rel_series) in log, log

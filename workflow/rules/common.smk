@@ -2,6 +2,7 @@
 
 import json
 import os
+import shlex
 import sys
 
 from snakemake.io import report as in_report  # `report(` opening a line is Snakemake's directive
@@ -127,7 +128,7 @@ def trained_models(replicate=0):
 
 def model_args(replicate=0):
     """``--model NAME=DIR`` for every configured model's replicate."""
-    return " ".join(f"--model {m}={model_dir(m, replicate)}" for m in MODELS)
+    return " ".join(f"--model {shlex.quote(f'{m}={model_dir(m, replicate)}')}" for m in MODELS)
 
 
 def model_folder_args(input):
@@ -138,7 +139,7 @@ def model_folder_args(input):
         if key.endswith("_meta"):
             folder = os.path.dirname(path)
             folders[os.path.basename(folder)] = folder
-    return " ".join(f"--model {name}={folder}" for name, folder in sorted(folders.items()))
+    return " ".join(f"--model {shlex.quote(f'{name}={folder}')}" for name, folder in sorted(folders.items()))
 
 
 def raceline_path():
@@ -288,18 +289,20 @@ def run_notebook(arguments):
     """The shell command of a notebook rule: papermill runs it under a `.part.ipynb` name (it
     writes as it runs), nbconvert makes the HTML copy, and the notebook is renamed last, so an
     interrupted notebook never looks finished. A notebook that fails leaves nothing beside the
-    results: its executed copy, which shows the failing cell, goes beside its log."""
+    results: its executed copy, which shows the failing cell, goes beside its log (the log says
+    so only when there is one). Every path is quoted: a checkout may have spaces in its path."""
     return (
-        "(papermill {input.notebook} {output.notebook}.part.ipynb --cwd . --no-progress-bar "
+        "(papermill {input.notebook:q} {output.notebook:q}.part.ipynb --cwd . --no-progress-bar "
         + arguments
-        + " > {log} 2>&1"
-        " && jupyter nbconvert --to html {output.notebook}.part.ipynb --output-dir $(dirname {output.html})"
-        " --output $(basename {output.html} .html)"
-        " --HTMLExporter.preprocessors=cape.study.notebook_html.ShortParameters >> {log} 2>&1"
-        " && mv {output.notebook}.part.ipynb {output.notebook})"
-        " || (mv -f {output.notebook}.part.ipynb {log}.failed.ipynb 2> /dev/null || true;"
-        " echo 'the notebook failed; its executed copy, with the failing cell: {log}.failed.ipynb'"
-        " >> {log}; exit 1)"
+        + " > {log:q} 2>&1"
+        " && jupyter nbconvert --to html {output.notebook:q}.part.ipynb --output-dir \"$(dirname {output.html:q})\""
+        " --output \"$(basename {output.html:q} .html)\""
+        " --HTMLExporter.preprocessors=cape.study.notebook_html.ShortParameters >> {log:q} 2>&1"
+        " && mv {output.notebook:q}.part.ipynb {output.notebook:q})"
+        " || ((mv -f {output.notebook:q}.part.ipynb {log:q}.failed.ipynb 2> /dev/null"
+        " && echo \"the notebook failed; its executed copy, with the failing cell: \"{log:q}.failed.ipynb"
+        " || echo 'the notebook failed before it ran (no executed copy); the messages above say why')"
+        " >> {log:q}; exit 1)"
     )
 
 
@@ -326,14 +329,16 @@ def scorecard_inputs(wildcards):
 
 def scorecard_params(wildcards, input):
     """The scorecard notebook's parameters: where its inputs and outputs are."""
-    return (
-        f"-r runs_path {wildcards.scope}/study/runs.parquet"
-        f" -r complexity_paths {','.join(input.complexity)!s}"
-        f" -r openloop_paths {','.join(input.openloop)!s}"
-        f" -r model_root results/models"
-        f" -r table_dir {wildcards.scope}/tables -r figure_dir {wildcards.scope}/figures"
-        f" -r glance_path {wildcards.scope}/RESULTS.md"
-    )
+    paths = {
+        "runs_path": f"{wildcards.scope}/study/runs.parquet",
+        "complexity_paths": ",".join(input.complexity),
+        "openloop_paths": ",".join(input.openloop),
+        "model_root": "results/models",
+        "table_dir": f"{wildcards.scope}/tables",
+        "figure_dir": f"{wildcards.scope}/figures",
+        "glance_path": f"{wildcards.scope}/RESULTS.md",
+    }
+    return " ".join(f"-r {name} {shlex.quote(value)}" for name, value in paths.items())
 
 
 def study_targets():

@@ -15,4 +15,4 @@ rule dataset:
     benchmark:
         "results/benchmarks/data/{track}.tsv"
     shell:
-        "cape data --track {wildcards.track} --out {output} --config-json {params.cfg:q} > {log} 2>&1"
+        "cape data --track {wildcards.track} --out {output:q} --config-json {params.cfg:q} > {log:q} 2>&1"

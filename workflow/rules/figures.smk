@@ -9,12 +9,12 @@ rule figure_tracks:
         pdf="results/figures/tracks_and_data.pdf",
         png="results/figures/tracks_and_data.png",
     params:
-        data=" ".join(f"--data {t}={dataset_path(t)}" for t in DATA_TRACKS),
+        data=" ".join(f"--data {shlex.quote(f'{t}={dataset_path(t)}')}" for t in DATA_TRACKS),
         cfg=lambda wildcards: config_json("tracks", "data"),
     conda:
         CAPE_ENV
     log:
         "results/logs/figures/tracks_and_data.log",
     shell:
-        "cape plot-tracks {params.data} --out {output.pdf} --out {output.png}"
-        " --config-json {params.cfg:q} > {log} 2>&1"
+        "cape plot-tracks {params.data} --out {output.pdf:q} --out {output.png:q}"
+        " --config-json {params.cfg:q} > {log:q} 2>&1"

@@ -27,9 +27,9 @@ rule train:
     benchmark:
         "results/benchmarks/train/rep{replicate}/{model}.tsv"
     shell:
-        "cape train --model {wildcards.model} --data {input.data} --out {params.out}"
+        "cape train --model {wildcards.model} --data {input.data:q} --out {params.out:q}"
         " --threads {threads} --checkpoint-every {resources.checkpoint_every}"
-        " --config-json {params.cfg:q} > {log} 2>&1"
+        " --config-json {params.cfg:q} > {log:q} 2>&1"
 
 
 rule freeze:
@@ -47,8 +47,8 @@ rule freeze:
     log:
         "results/logs/freeze/rep{replicate}/{model}.log",
     shell:
-        "cape freeze --model {wildcards.model}={params.folder} --data {input.data} --out {output}"
-        " --config-json {params.cfg:q} > {log} 2>&1"
+        "cape freeze --model {wildcards.model}={params.folder:q} --data {input.data:q} --out {output:q}"
+        " --config-json {params.cfg:q} > {log:q} 2>&1"
 
 
 rule export_network:
@@ -66,8 +66,8 @@ rule export_network:
     log:
         "results/logs/export/rep{replicate}/{model}.log",
     shell:
-        "cape export-network --model {wildcards.model}={params.folder} --out {output}"
-        " --config-json {params.cfg:q} > {log} 2>&1"
+        "cape export-network --model {wildcards.model}={params.folder:q} --out {output:q}"
+        " --config-json {params.cfg:q} > {log:q} 2>&1"
 
 
 rule openloop_table:
@@ -89,8 +89,8 @@ rule openloop_table:
     benchmark:
         "results/benchmarks/tables/rep{replicate}/table04_openloop_rmse.tsv"
     shell:
-        "cape openloop {params.models} --train-data {input.train} --test-data {input.test}"
-        " --out {output.csv} --out {output.md} --out {output.tex} --config-json {params.cfg:q} > {log} 2>&1"
+        "cape openloop {params.models} --train-data {input.train:q} --test-data {input.test:q}"
+        " --out {output.csv:q} --out {output.md:q} --out {output.tex:q} --config-json {params.cfg:q} > {log:q} 2>&1"
 
 
 rule complexity_table:
@@ -111,8 +111,8 @@ rule complexity_table:
     benchmark:
         "results/benchmarks/tables/rep{replicate}/table01_model_complexity.tsv"
     shell:
-        "cape complexity {params.models} --data {input.test}"
-        " --out {output.csv} --out {output.md} --out {output.tex} --config-json {params.cfg:q} > {log} 2>&1"
+        "cape complexity {params.models} --data {input.test:q}"
+        " --out {output.csv:q} --out {output.md:q} --out {output.tex:q} --config-json {params.cfg:q} > {log:q} 2>&1"
 
 
 rule figure_models:
@@ -132,7 +132,7 @@ rule figure_models:
     log:
         "results/logs/figures/models.log",
     shell:
-        "cape plot-models {params.models} --data {input.test}"
-        " --phi-out {output.phi_pdf} --phi-out {output.phi_png}"
-        " --curves-out {output.curves_pdf} --curves-out {output.curves_png}"
-        " --config-json {params.cfg:q} > {log} 2>&1"
+        "cape plot-models {params.models} --data {input.test:q}"
+        " --phi-out {output.phi_pdf:q} --phi-out {output.phi_png:q}"
+        " --curves-out {output.curves_pdf:q} --curves-out {output.curves_png:q}"
+        " --config-json {params.cfg:q} > {log:q} 2>&1"

@@ -17,6 +17,6 @@ rule raceline:
     log:
         "results/logs/raceline/{track}.log",
     shell:
-        "cape raceline --track {wildcards.track} --out {output.line}"
-        " --figure {output.pdf} --figure {output.png} --time-limit {params.time_limit}"
-        " --config-json {params.cfg:q} > {log} 2>&1"
+        "cape raceline --track {wildcards.track} --out {output.line:q}"
+        " --figure {output.pdf:q} --figure {output.png:q} --time-limit {params.time_limit}"
+        " --config-json {params.cfg:q} > {log:q} 2>&1"

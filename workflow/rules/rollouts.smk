@@ -17,7 +17,7 @@ rule solver:
         "results/benchmarks/solvers/rep{replicate}/{controller}/{internal}.tsv"
     shell:
         "cape build-solver --controller {wildcards.controller} --internal {wildcards.internal}"
-        " --raceline {input.raceline} --out {output} {params.models} --config-json {params.cfg:q} > {log} 2>&1"
+        " --raceline {input.raceline:q} --out {output:q} {params.models} --config-json {params.cfg:q} > {log:q} 2>&1"
 
 
 rule rollout:
@@ -41,8 +41,8 @@ rule rollout:
         "cape rollout --study {wildcards.study} --plant {wildcards.plant}"
         " --controller {wildcards.controller} --internal {wildcards.internal}"
         " --eta {wildcards.eta} --seed {wildcards.seed} --replicate {wildcards.replicate}"
-        " --out {params.out} {params.models}"
-        " --raceline {input.raceline} --config-json {params.cfg:q} > {log} 2>&1"
+        " --out {params.out:q} {params.models}"
+        " --raceline {input.raceline:q} --config-json {params.cfg:q} > {log:q} 2>&1"
 
 
 rule rollouts:
@@ -69,5 +69,5 @@ rule figure_rollout:
     log:
         f"results/logs/figures/rollout/{RUN_STEM}.log",
     shell:
-        "cape plot-rollout --run {params.run} --raceline {input.raceline} --out {output.pdf} --out {output.png}"
-        " --config-json {params.cfg:q} > {log} 2>&1"
+        "cape plot-rollout --run {params.run:q} --raceline {input.raceline:q} --out {output.pdf:q} --out {output.png:q}"
+        " --config-json {params.cfg:q} > {log:q} 2>&1"

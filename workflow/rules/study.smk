@@ -23,8 +23,8 @@ rule aggregate:
     benchmark:
         "{scope}/benchmarks/study/aggregate.tsv"
     shell:
-        "cape aggregate --out {output.runs} --summary {output.summary}"
-        " --config-json {params.cfg:q} > {log} 2>&1"
+        "cape aggregate --out {output.runs:q} --summary {output.summary:q}"
+        " --config-json {params.cfg:q} > {log:q} 2>&1"
 
 
 rule notebook_setup:

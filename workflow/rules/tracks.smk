@@ -13,4 +13,4 @@ rule tracks:
     localrule: True
     shell:
         # tee: a failure's message (what to do) shows on the console, not only in the log
-        "cape tracks --config-json {params.cfg:q} 2>&1 | tee {log}"
+        "cape tracks --config-json {params.cfg:q} 2>&1 | tee {log:q}"
