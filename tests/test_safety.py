@@ -349,7 +349,8 @@ def test_a_network_left_from_earlier_weights_is_refused(
     # another model into this model's folder: refused before anything is written
     kept = {n: (folder / n).read_bytes() for n in ("model.pt", "meta.json", "loss.csv")}
     other = cape(*[("ddm" if a == "dpm" else a) for a in train])
-    one_message(other, f"--out {folder}: holds a trained 'dpm', not 'ddm'", "nothing was changed")
+    one_message(other, f"--out {folder}: holds a trained 'dpm' of replicate 0, not 'ddm'",
+                "nothing was changed")  # fmt: skip
     assert {n: (folder / n).read_bytes() for n in kept} == kept
 
     def run(plant: str) -> subprocess.CompletedProcess:
@@ -359,6 +360,68 @@ def test_a_network_left_from_earlier_weights_is_refused(
     one_message(run("dpm"), "network.npz", "stale", "cape export-network")
     one_message(run("dpm-fixed"), "frozen_phi.json", "stale")
     assert not (tmp_path / "dpm").exists() and not (tmp_path / "dpm-fixed").exists()
+
+
+# --- 6b. a run records the trained networks it used; a stale or misfiled run is refused ------
+def test_a_run_is_tied_to_its_replicates_networks(
+    setup: dict, datasets: dict, tmp_path: Path
+) -> None:
+    """A run labelled replicate 1 computed on replicate 0's network is refused by `cape
+    rollout`; a replicate never trained is refused; a run whose network was retrained since is
+    refused by the aggregation, naming the run, the model, both digests and the fix."""
+    from cape.cli import main
+
+    data = tmp_path / "ethz.npz"
+    np.savez(data, **datasets["ETHZ"])
+    models = tmp_path / "models"
+    folder = models / "rep0" / "dpm"
+    config = ["--config", str(setup["config"])]
+    train = ["train", "--model", "dpm", "--data", str(data), "--out", str(folder), "--epochs", "1"]
+    assert main([*train, *config]) == 0
+    assert main(["export-network", "--model", f"dpm={folder}", *config]) == 0
+    runs = tmp_path / "runs"
+    out = runs / "learned" / "rep0" / "dpm" / "dpm" / "pid" / "eta0" / "seed0"
+    base = rollout_args(setup, out, plant="dpm", study="learned")[1:]
+    misfiled = cape(*base, "--replicate", "1", "--model", f"dpm={folder}")
+    one_message(misfiled, "--replicate 1: the dpm model in", "is replicate 0's")
+    never = cape(*base, "--replicate", "5", "--models-dir", str(models / "rep5"))
+    one_message(never, "rep5/dpm/meta.json: missing")
+    assert not out.exists()
+    made = cape(*base, "--model", f"dpm={folder}")
+    assert made.returncode == 0, made.stderr
+    recorded = json.loads((out / "metrics.json").read_text())["models"]["plant"]
+    meta = json.loads((folder / "meta.json").read_text())
+    assert recorded["weights_sha256"] == meta["weights_sha256"] and recorded["replicate"] == 0
+    aggregate = ["aggregate", str(out / "metrics.json"), "--out", str(tmp_path / "runs.parquet"),
+                 "--summary", str(tmp_path / "summary.parquet"), "--models-root", str(models),
+                 *config]  # fmt: skip
+    assert cape(*aggregate).returncode == 0
+    assert cape(*train, "--seed", "1", *config).returncode == 0  # retrained by hand
+    stale = cape(*aggregate)
+    one_message(stale, str(out), "plant model dpm", recorded["weights_sha256"][:12],
+                json.loads((folder / "meta.json").read_text())["weights_sha256"][:12],
+                f"rm -r {out}")  # fmt: skip
+
+
+def test_the_kernel_environment_is_part_of_a_trainings_identity(
+    setup: dict, datasets: dict, tmp_path: Path
+) -> None:
+    """MKL_CBWR set by hand draws another network: meta.json records it (it said `{}`), and the
+    checkpoint's fingerprint holds it, so a checkpoint is never resumed under another setting."""
+    from cape.models.kernels import in_effect
+
+    data = tmp_path / "ethz.npz"
+    np.savez(data, **datasets["ETHZ"])
+    out = tmp_path / "dpm"
+    result = subprocess.run(
+        ["cape", "train", "--model", "dpm", "--data", str(data), "--out", str(out), "--epochs",
+         "1", "--config", str(setup["config"])], capture_output=True, text=True, timeout=600,
+        env={**os.environ, "MKL_CBWR": "COMPATIBLE"},
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert json.loads((out / "meta.json").read_text())["kernels"] == {"MKL_CBWR": "COMPATIBLE"}
+    pinned = {"mkl_cbwr": "AVX2", "aten_capability": None}
+    assert in_effect(pinned) == {"mkl_cbwr": "AVX2"}  # a pin shows once, as the pin
 
 
 # --- 3. training resumes from its checkpoint, byte-identical ---------------------------------

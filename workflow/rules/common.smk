@@ -16,6 +16,7 @@ from cape.locks import clear_stale_locks
 from cape.models.registry import model_class
 from cape.study.grid import RunId, canonical, check_grid_size, study_runs
 from cape.study.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS
+from cape.study.stale import age_if_incomplete
 from cape.tracks.manifest import BAYESRACE_FILES
 
 
@@ -237,12 +238,7 @@ def aggregate_config_json(replicates):
 def rollout_targets(replicates=None):
     """metrics.json of every run the grid computes (each once); ``replicates``: only the runs
     of these training replicates (the default target's are replicate 0's)."""
-    return [
-        f"{computed.folder()}/metrics.json"
-        for computed in dict.fromkeys(
-            computed for run, computed in GRID.items() if replicates is None or run.replicate in replicates
-        )
-    ]
+    return [f"{run.folder()}/metrics.json" for run in computed_runs(replicates)]
 
 
 # --- the study's notebooks -------------------------------------------------------------------
@@ -341,29 +337,88 @@ def scorecard_params(wildcards, input):
     return " ".join(f"-r {name} {shlex.quote(value)}" for name, value in paths.items())
 
 
-def study_targets():
-    """Every table, figure and executed notebook of the study: per study, the notebook of its
-    kind and the failure map; the set-up figures; the scorecard when the paper's study is in
-    the grid (its claims are about that study)."""
-    targets = [
-        "results/study/runs.parquet",
-        "results/notebooks/setup.html",
+def job_outputs(name, **wildcards):
+    """Every file that one job of ``name`` writes: its output patterns with ``wildcards`` filled.
+
+    A target lists every file of every job it comprises, not only the last ones: Snakemake does
+    not rebuild a deleted file that no target asks for (nor the rest of a job's outputs), so a
+    deleted model, run, table or figure is rebuilt, with everything downstream, only if the
+    target names it."""
+    return [str(pattern).format(**wildcards) for pattern in getattr(rules, name).output]
+
+
+def run_outputs(runs):
+    """The files of every run in ``runs`` (RunIds), each once."""
+    return [
+        path
+        for run in dict.fromkeys(runs)
+        for path in job_outputs("rollout", study=run.study, replicate=run.replicate, plant=run.plant,
+                                internal=run.internal, controller=run.controller, eta=run.eta,
+                                seed=run.seed)  # fmt: skip
     ]
-    targets += [f"results/notebooks/{study}.html" for study in STUDIES]
-    targets += [f"results/notebooks/failures_{study}.html" for study in STUDIES]
+
+
+def model_outputs(replicates):
+    """Every file of the model stage for these training replicates: each model's training,
+    exported network and frozen Φ, tables 1 and 4."""
+    files = []
+    for r in replicates:
+        for m in MODELS:
+            for stage in ("train", "freeze", "export_network"):
+                files += job_outputs(stage, model=m, replicate=r)
+        files += job_outputs("openloop_table", replicate=r) + job_outputs("complexity_table", replicate=r)
+    return files
+
+
+def solver_outputs(runs):
+    """The compiled solver of every run in ``runs`` that uses one."""
+    return list(
+        dict.fromkeys(
+            solver_path(run.controller, run.internal, run.replicate)
+            for run in runs
+            if compiles_solver(run.controller)
+        )
+    )
+
+
+def computed_runs(replicates=None):
+    """The runs the grid computes (each once), of these training replicates (all: None)."""
+    return list(
+        dict.fromkeys(
+            computed for run, computed in GRID.items() if replicates is None or run.replicate in replicates
+        )
+    )
+
+
+def study_targets():
+    """Every table, figure and executed notebook of the default target's study, and the
+    aggregation they read: per study, the notebook of its kind and the failure map; the set-up
+    notebook; the scorecard when the paper's study is in the grid (its claims are about it)."""
+    targets = job_outputs("aggregate", scope="results") + job_outputs("notebook_setup")
+    for study, grid in STUDIES.items():
+        kind = grid.get("kind", "closed_loop")
+        targets += job_outputs(f"notebook_{kind}", study=study)
+        targets += job_outputs("notebook_failures", study=study)
     if config["study"].get("paper") in STUDIES:
-        targets += ["results/tables/table08_scorecard.md", "results/notebooks/scorecard.html"]
+        targets += job_outputs("notebook_scorecard", scope="results")
     return targets
 
 
 def replicate_targets():
     """The `replicates` target: every replicate's models and the paper's study for each, with
-    its scorecard (verdicts per replicate and pooled) under results/replicates/."""
+    its scorecard (verdicts per replicate and pooled) under results/replicates/, and every file
+    those are made from (the default target's runs among them: the scorecard reads its
+    summary)."""
     if config["study"].get("paper") not in STUDIES:
         return []
+    runs = computed_runs()
     return [
-        "results/replicates/tables/table08_scorecard.md",
-        "results/replicates/notebooks/scorecard.html",
+        *model_outputs(range(REPLICATES)),
+        *solver_outputs(runs),
+        *run_outputs(runs),
+        *job_outputs("aggregate", scope="results"),
+        *job_outputs("aggregate", scope="results/replicates"),
+        *job_outputs("notebook_scorecard", scope="results/replicates"),
     ]
 
 
@@ -372,15 +427,17 @@ def dataset_path(track):
 
 
 def all_targets():
+    """The default target: every file the workflow makes for training replicate 0."""
+    runs = computed_runs({0})
     return [
-        *(dataset_path(t) for t in DATA_TRACKS),
-        "results/figures/tracks_and_data.pdf",
-        "results/figures/tracks_and_data.png",
-        *(f"{model_dir(m)}/frozen_phi.json" for m in MODELS),
-        "results/tables/rep0/table04_openloop_rmse.csv",
-        "results/tables/rep0/table01_model_complexity.csv",
-        "results/figures/model_phi_ethzmobil.pdf",
-        "results/figures/training_curves.pdf",
-        f"results/raceline/{config['reference']['track']}.npz",
+        *job_outputs("tracks"),
+        *(path for t in DATA_TRACKS for path in job_outputs("dataset", track=t)),
+        *job_outputs("figure_tracks"),
+        *model_outputs([0]),
+        *job_outputs("figure_models"),
+        *job_outputs("raceline", track=config["reference"]["track"]),
+        *solver_outputs(runs),
+        *run_outputs(runs),
         *study_targets(),
     ]
+

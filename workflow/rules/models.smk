@@ -27,7 +27,8 @@ rule train:
     benchmark:
         "results/benchmarks/train/rep{replicate}/{model}.tsv"
     shell:
-        "cape train --model {wildcards.model} --data {input.data:q} --out {params.out:q}"
+        "cape train --model {wildcards.model} --replicate {wildcards.replicate}"
+        " --data {input.data:q} --out {params.out:q}"
         " --threads {threads} --checkpoint-every {resources.checkpoint_every}"
         " --config-json {params.cfg:q} > {log:q} 2>&1"
 

@@ -48,7 +48,8 @@ rule rollout:
 rule rollouts:
     """Every closed-loop run of the default target (replicate 0; a named target)."""
     input:
-        rollout_targets({0}),
+        solver_outputs(computed_runs({0})),
+        run_outputs(computed_runs({0})),
     localrule: True
 
 

@@ -23,7 +23,7 @@ rule aggregate:
     benchmark:
         "{scope}/benchmarks/study/aggregate.tsv"
     shell:
-        "cape aggregate --out {output.runs:q} --summary {output.summary:q}"
+        "cape aggregate --out {output.runs:q} --summary {output.summary:q} --models-root results/models"
         " --config-json {params.cfg:q} > {log:q} 2>&1"
 
 
@@ -207,3 +207,19 @@ rule replicates:
     input:
         replicate_targets(),
     localrule: True
+
+
+# A scope's runs.parquet that lists runs whose files were deleted is aged, so that any target
+# that reads it rebuilds the runs and then it (cape/study/stale.py).
+if workflow.is_main_process:
+    for _scope, _replicates in SCOPES.items():
+        _missing = age_if_incomplete(
+            job_outputs("aggregate", scope=_scope),
+            (f"{run.folder()}/metrics.json" for run in computed_runs(set(_replicates))),
+        )
+        if _missing:
+            print(
+                f"{_scope}/study/runs.parquet: {len(_missing)} of its runs are missing (e.g. "
+                f"{_missing[0].parent}); they and it will be rebuilt",
+                file=sys.stderr,
+            )

@@ -79,7 +79,8 @@ def _add_model_folders(parser: argparse.ArgumentParser) -> None:
         help="folder of a trained model this run reads (repeat; default: MODELS_DIR/NAME)",
     )
     parser.add_argument(
-        "--models-dir", default="results/models/rep0", help="folder of the trained models' folders"
+        "--models-dir",
+        help="folder of the trained models' folders (default: results/models/rep<--replicate>)",
     )
 
 
@@ -92,7 +93,8 @@ def _model_folders(args: argparse.Namespace) -> Any:
         if not sep or not name or not folder:
             raise CapeError(f"--model {item}: expected NAME=DIR, e.g. epm=results/models/rep0/epm")
         named[name] = Path(folder)
-    return ModelFolders(Path(args.models_dir), named)
+    root = args.models_dir or f"results/models/rep{getattr(args, 'replicate', 0)}"
+    return ModelFolders(Path(root), named)
 
 
 def _entry(name: str, entries: Any, option: str, field: str) -> Any:

@@ -52,6 +52,12 @@ def _train_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output folder for model.pt, meta.json, loss.csv")
     p.add_argument("--epochs", type=int, help="override the config's epoch count (smoke runs)")
     p.add_argument("--seed", type=int, help="override training.seed")
+    p.add_argument(
+        "--replicate",
+        type=int,
+        default=0,
+        help="the training replicate this is (SPEC §4; meta.json: a run refuses another's)",
+    )
     p.add_argument("--threads", type=int, help="override training.threads")
     p.add_argument(
         "--checkpoint-every",
@@ -70,7 +76,7 @@ def cmd_train(args: argparse.Namespace) -> None:
     import numpy as np
 
     from cape.config import section
-    from cape.models.kernels import pin_before_torch, pin_inductor, pinned
+    from cape.models.kernels import in_effect, pin_before_torch, pin_inductor
 
     config = _config(args)
     kernels = section(config, "training").get("kernels")
@@ -92,13 +98,14 @@ def cmd_train(args: argparse.Namespace) -> None:
         "--epochs": (args.epochs, 1),
         "--threads": (args.threads, 1),
         "--seed": (args.seed, 0),
+        "--replicate": (args.replicate, 0),
         "--checkpoint-every": (args.checkpoint_every, 0),
     }
     for option, (value, least) in counts.items():
         if value is not None and not (math.isfinite(value) and value >= least):  # NaN too
             raise CapeError(f"{option} {value}: give a finite number of at least {least}")
     spec = _model_spec(config, args.model)
-    _check_model_folder(Path(args.out), args.model)  # before the training, not after it
+    _check_model_folder(Path(args.out), args.model, args.replicate)  # before training
     data_cfg, train_cfg = section(config, "data"), section(config, "training")
     seed = int(args.seed if args.seed is not None else train_cfg["seed"])
     data_path = Path(args.data)
@@ -133,7 +140,7 @@ def cmd_train(args: argparse.Namespace) -> None:
         step=TRAINING_STEP,
         torch=torch.__version__,
         format=FORMAT_VERSION,
-        **({"kernels": pinned(kernels)} if pinned(kernels) else {}),
+        **({"kernels": in_effect(kernels)} if in_effect(kernels) else {}),
     )
     every = args.checkpoint_every
     every = float(train_cfg.get("checkpoint_every", 60.0) if every is None else every)
@@ -158,6 +165,7 @@ def cmd_train(args: argparse.Namespace) -> None:
         print(f"resumed from {checkpoint.path} after epoch {result.resumed_from}")
     meta = {
         "seed": seed,
+        "replicate": args.replicate,
         "epochs": len(result.losses),
         "best_epoch": result.best_epoch,
         "best_val_loss": result.best_val_loss,
@@ -170,7 +178,7 @@ def cmd_train(args: argparse.Namespace) -> None:
         "data_file": str(data_path),
         "data_sha256": data_sha256,
         "torch_version": torch.__version__,
-        "kernels": pinned(kernels),  # empty: the CPU's own code paths
+        "kernels": in_effect(kernels),  # empty: the CPU's own code paths
         "resumed_from_epoch": result.resumed_from,
     }
     rows = ["epoch,train_loss,val_loss"] + [
@@ -185,11 +193,11 @@ def cmd_train(args: argparse.Namespace) -> None:
     )
 
 
-def _check_model_folder(out: Path, model: str) -> None:
+def _check_model_folder(out: Path, model: str, replicate: int) -> None:
     """``cape train`` replaces a model folder's ``model.pt``, ``meta.json`` and ``loss.csv``
-    only if they are the same model CAPE wrote (its ``meta.json`` readable and naming
-    ``model``): never a user's files of the same names, never another model's training, never
-    a file given as the folder."""
+    only if they are the same model CAPE wrote (its ``meta.json`` readable, naming ``model``
+    and ``replicate``): never a user's files of the same names, never another model's or
+    replicate's training, never a file given as the folder."""
     from cape.models.trained import read_meta
 
     if out.exists() and not out.is_dir():
@@ -204,11 +212,12 @@ def _check_model_folder(out: Path, model: str) -> None:
             f"--out {out}: holds {', '.join(present)} that are not a model CAPE trained ({exc}); "
             "nothing was changed. Choose another folder, or delete those files"
         ) from None
-    if meta["name"] != model:
+    if meta["name"] != model or meta.get("replicate", replicate) != replicate:
         raise CapeError(
-            f"--out {out}: holds a trained {meta['name']!r}, not {model!r}; nothing was changed. "
-            f"Train {model!r} into its own folder (results/models/rep<r>/{model}), or delete "
-            "that folder first"
+            f"--out {out}: holds a trained {meta['name']!r} of replicate "
+            f"{meta.get('replicate')}, not {model!r} of replicate {replicate}; nothing was "
+            f"changed. Train it into its own folder (results/models/rep{replicate}/{model}), or "
+            "delete that folder first"
         )
 
 

@@ -113,8 +113,10 @@ def _percentile(ordered: Any, q: float) -> float:
 def cmd_rollout(args: argparse.Namespace) -> None:
     import numpy as np
 
+    from cape.closedloop.provenance import run_models
     from cape.closedloop.setup import build_run
-    from cape.config import check_eta
+    from cape.config import check_eta, section
+    from cape.controllers import controller_class
     from cape.io import atomic_folder, check_replaceable
     from cape.study.grid import RUN_FILES, check_name
     from cape.study.record import write_run_files, write_timing
@@ -129,6 +131,14 @@ def cmd_rollout(args: argparse.Namespace) -> None:
     check_name(args.study, "--study")
     out = Path(args.out)
     check_replaceable(out, RUN_FILES, RUN_WHAT)  # before the lap, not after it
+    folders = _model_folders(args)
+    entries = section(config, "controllers")  # an unknown name: build_run says so
+    needs = (
+        args.controller in entries
+        and controller_class(args.controller, entries[args.controller]).needs_internal_model
+    )
+    internal = (args.internal or args.plant) if needs else None
+    used = run_models(config, args.plant, internal, folders, args.replicate)
     configured = time.perf_counter()
     run = build_run(
         config,
@@ -137,7 +147,7 @@ def cmd_rollout(args: argparse.Namespace) -> None:
         eta,
         args.seed,
         args.internal,
-        _model_folders(args),
+        folders,
         args.raceline,
         validate=args.config_json is None,
     )
@@ -152,6 +162,7 @@ def cmd_rollout(args: argparse.Namespace) -> None:
         "eta": args.eta,
         "seed": args.seed,
         "replicate": args.replicate,
+        "models": used,  # the trained networks it was computed with (cape.closedloop.provenance)
         **result.metrics,
     }
     ms = np.sort(result.solve_ms)

@@ -21,6 +21,11 @@ def _aggregate_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--root", default="results/runs", help="where the grid's runs are")
     p.add_argument("--out", required=True, help="the tidy table of runs (.parquet)")
     p.add_argument("--summary", required=True, help="the per-cell summary (.parquet)")
+    p.add_argument(
+        "--models-root",
+        help="check each run's trained networks against the models in MODELS_ROOT/rep<r>/ (the "
+        "workflow's: results/models); a run computed with others is refused",
+    )
     _add_config_args(p)
 
 
@@ -53,7 +58,7 @@ def cmd_aggregate(args: argparse.Namespace) -> None:
         pairs = [(run.study, computed.folder(args.root) / "metrics.json", computed, run.replicate)
                  for run, computed in grid.items()
                  if read is None or run.replicate in read]  # fmt: skip
-    runs = collect_runs(pairs, config["study"]["studies"])
+    runs = collect_runs(pairs, config["study"]["studies"], args.models_root)
     summary = summarise(runs)
     # both tables or neither: a new runs.parquet never stands beside an old summary
     write_files(

@@ -22,10 +22,32 @@ from cape.errors import CapeError
 
 ENVIRONMENT = {"mkl_cbwr": "MKL_CBWR", "aten_capability": "ATEN_CPU_CAPABILITY"}
 
+SELECTING = (
+    "MKL_CBWR",
+    "ATEN_CPU_CAPABILITY",
+    "MKL_ENABLE_INSTRUCTIONS",
+    "MKL_DEBUG_CPU_TYPE",
+    "ONEDNN_MAX_CPU_ISA",
+    "DNNL_MAX_CPU_ISA",
+)
+"""Environment variables that choose the training's kernels' code paths (MKL's branch, ATen's
+and oneDNN's instruction set): set by hand, they draw another network (docs/models.md)."""
+
 
 def pinned(settings: Mapping[str, Any] | None) -> dict[str, Any]:
     """The pins that are set (what a training's identity records; empty: the CPU's own)."""
     return {k: v for k, v in (settings or {}).items() if v is not None}
+
+
+def in_effect(settings: Mapping[str, Any] | None) -> dict[str, Any]:
+    """What decides a training's kernels beyond the CPU: the config's pins and every selecting
+    variable set in the environment (by its name; a config pin sets its own variable, so it
+    shows once, as the pin). Part of a training's identity: recorded in meta.json and in the
+    checkpoint's fingerprint, so that no checkpoint resumes under another setting."""
+    pins = pinned(settings)
+    pinned_vars = {ENVIRONMENT[k] for k in pins if k in ENVIRONMENT}
+    env = {v: os.environ[v] for v in SELECTING if v in os.environ and v not in pinned_vars}
+    return {**pins, **env}
 
 
 def pin_before_torch(settings: Mapping[str, Any] | None) -> None:

@@ -51,11 +51,56 @@ METRICS = [
 ]
 
 
+class CurrentModels:
+    """The weights digest of each trained model now in ``root/rep<r>/<model>/`` (read once)."""
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+        self._seen: dict[tuple[int, str], tuple[Path, str]] = {}
+
+    def __call__(self, replicate: int, model: str) -> tuple[Path, str]:
+        key = (replicate, model)
+        if key not in self._seen:
+            from cape.models.trained import read_meta
+
+            folder = self.root / f"rep{replicate}" / model
+            self._seen[key] = (folder / "meta.json", str(read_meta(folder).get("weights_sha256")))
+        return self._seen[key]
+
+
+def check_models(metrics: Mapping[str, Any], folder: Path, current: CurrentModels) -> None:
+    """A run must record the trained networks it was computed with, and they must be its
+    replicate's current models (cape.closedloop.provenance)."""
+    fix = f"the run is stale: delete it (`rm -r {folder}`) and rerun the target that needs it"
+    recorded = metrics.get("models")
+    plant = str(metrics["plant"])
+    if recorded is None:
+        if plant != "truth" or str(metrics["internal"]) != "truth":
+            raise CapeError(
+                f"{folder}: metrics.json records no trained networks (written by an earlier "
+                f"version of `cape rollout`); {fix}"
+            )
+        return
+    if plant != "truth" and "plant" not in recorded:
+        raise CapeError(f"{folder}: metrics.json records no network for its plant {plant}; {fix}")
+    replicate = int(metrics["replicate"])
+    for role, used in recorded.items():
+        meta, digest = current(replicate, str(used["model"]))
+        if used.get("replicate") != replicate or used.get("weights_sha256") != digest:
+            found = str(used.get("weights_sha256"))[:12]
+            raise CapeError(
+                f"{folder}: its {role} model {used['model']} was {used['folder']} (replicate "
+                f"{used.get('replicate')}, weights {found}…), but replicate {replicate}'s is "
+                f"{meta.parent} (weights {digest[:12]}…, {meta}); {fix}"
+            )
+
+
 def read_run(
     metrics_path: Path,
     study: str | None = None,
     expected: RunId | None = None,
     replicate: int | None = None,
+    current: CurrentModels | None = None,
 ) -> dict:
     """One row of ``study`` (default: the study the run's metrics.json records): the run's
     metrics and its timing (a run shared by two studies is read once per study). The run's
@@ -69,7 +114,9 @@ def read_run(
     timing = read_timing(folder)
     verify_series(folder, timing)
     timing = {k: v for k, v in timing.items() if k.startswith("solve_ms")}
-    kept = {k: v for k, v in metrics.items() if k != KEY}
+    if current is not None:
+        check_models(metrics, folder, current)
+    kept = {k: v for k, v in metrics.items() if k not in (KEY, "models")}
     row = {**kept, **timing, "study": study or metrics["study"], "folder": str(folder)}
     if replicate is not None:
         row["replicate"] = replicate
@@ -81,12 +128,15 @@ def read_run(
 def collect_runs(
     runs: Iterable[tuple[Any, ...]],
     studies: Mapping[str, Any],
+    models_root: str | Path | None = None,
 ) -> pd.DataFrame:
     """The tidy table of the given runs ((study, metrics.json[, the run it must hold[, the
-    replicate that asks]]) tuples; a study of None: the one the run records), sorted by its keys.
+    replicate that asks]]) tuples; a study of None: the one the run records), sorted by its keys;
+    ``models_root``: check each run's trained networks against the models there.
     ``model`` names the model a run is about: the internal model in a study that varies it (the
     ground-truth study), else the plant's; ``studies`` is the config's ``study.studies``."""
-    rows = [read_run(Path(run[1]), run[0], *run[2:]) for run in runs]
+    current = CurrentModels(models_root) if models_root is not None else None
+    rows = [read_run(Path(run[1]), run[0], *run[2:4], current=current) for run in runs]
     if not rows:
         raise CapeError("no runs to aggregate")
     frame = pd.DataFrame(rows)
