@@ -377,3 +377,33 @@ def test_a_failed_compile_names_its_likely_cause(monkeypatch: pytest.MonkeyPatch
     assert "ATEN_CPU_CAPABILITY=default is set" in forced and "C++ compiler (" not in forced
     assert "vectorisation failed" in forced and "more" not in forced  # the first line only
     assert "training.compile.enabled: false" in forced
+
+
+def test_a_damaged_training_record_is_named_with_its_fix(
+    config, small_data, tmp_path: Path
+) -> None:
+    """loss.csv empty or without its columns, best_val_loss null, a checkpoint of this training
+    that lacks a key: one CapeError naming the file, never pandas' or torch's own."""
+    from cape.models.trained import read_training
+    from cape.models.training import Checkpointing
+
+    result = _train(config, "dpm", small_data[10], epochs=1)
+    save_model(result.model, tmp_path, {"best_val_loss": 1e-3, "best_epoch": 1},
+               {"loss.csv": b"epoch,train_loss,val_loss\n1,0.5,0.4\n"})  # fmt: skip
+    losses, meta = read_training(tmp_path)
+    assert losses["val_loss"].tolist() == [0.4] and meta["best_val_loss"] == 1e-3
+    for text, message in ((b"", "not a loss curve"), (b"epoch,loss\n1,0.5\n", "lacks the column"),
+                          (b"epoch,train_loss,val_loss\n", "has no epoch"),
+                          (b"epoch,train_loss,val_loss\n1,x,0.4\n", "not numbers")):  # fmt: skip
+        (tmp_path / "loss.csv").write_bytes(text)
+        with pytest.raises(CapeError, match=f"loss.csv: .*{message}.*train it again"):
+            read_training(tmp_path)
+    (tmp_path / "loss.csv").write_bytes(b"epoch,train_loss,val_loss\n1,0.5,0.4\n")
+    meta = json.loads((tmp_path / "meta.json").read_text())
+    (tmp_path / "meta.json").write_text(json.dumps({**meta, "best_val_loss": None}))
+    with pytest.raises(CapeError, match="`best_val_loss` is None, not a finite number"):
+        read_training(tmp_path)
+    checkpoint = Checkpointing(tmp_path / "checkpoint.pt", "abc")
+    checkpoint.save({"model": {}, "losses": []})  # this training's fingerprint, keys missing
+    with pytest.raises(CapeError, match=r"lacks optimiser, generator, .* not resumed; delete it"):
+        checkpoint.load()

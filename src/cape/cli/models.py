@@ -392,12 +392,11 @@ def _plot_models_arguments(p: argparse.ArgumentParser) -> None:
 )
 def cmd_plot_models(args: argparse.Namespace) -> None:
     import numpy as np
-    import pandas as pd
 
     from cape.config import section
     from cape.data.windows import make_windows
     from cape.models.evaluate import predict_phi
-    from cape.models.trained import read_meta
+    from cape.models.trained import read_training
     from cape.plots.models import plot_phi, plot_training_curves
     from cape.plots.style import save_figure
     from cape.vehicle.dynamics import drivetrain_force
@@ -425,7 +424,7 @@ def cmd_plot_models(args: argparse.Namespace) -> None:
     best = {}
     for item in args.model:
         name, _, folder = item.partition("=")
-        losses[name] = pd.read_csv(Path(folder) / "loss.csv")
-        best[name] = int(read_meta(folder)["best_epoch"])
+        losses[name], meta = read_training(folder)
+        best[name] = int(meta["best_epoch"])
     save_figure(plot_training_curves(losses, best, colors, labels), *args.curves_out)
     print("wrote " + ", ".join([*args.phi_out, *args.curves_out]))

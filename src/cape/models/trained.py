@@ -7,6 +7,7 @@ exported from ``model.pt``), without PyTorch.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -75,6 +76,43 @@ def read_meta(folder: str | Path) -> dict[str, Any]:
             f"{path}: checkpoint format {meta.get('format')!r}, expected {FORMAT_VERSION}; retrain"
         )
     return meta
+
+
+LOSS_COLUMNS = ("epoch", "train_loss", "val_loss")
+
+
+def read_training(folder: str | Path) -> tuple[Any, dict[str, Any]]:
+    """A model folder's ``loss.csv`` (a DataFrame with epoch, train_loss, val_loss: one row
+    per epoch, numbers) and its ``meta.json`` (``best_val_loss`` a finite number,
+    ``best_epoch`` an epoch), or ``CapeError`` naming the file and the fix."""
+    import pandas as pd
+
+    folder = Path(folder)
+    meta = read_meta(folder)
+    path = folder / "loss.csv"
+    fix = f"delete the model folder and train it again (`snakemake --cores 2 {folder}/model.pt`)"
+    try:
+        losses = pd.read_csv(path)
+    except FileNotFoundError:
+        raise CapeError(f"{path}: missing; {fix}") from None
+    except (pd.errors.EmptyDataError, pd.errors.ParserError, UnicodeDecodeError) as exc:
+        raise CapeError(f"{path}: not a loss curve ({exc}); {fix}") from None
+    missing = [c for c in LOSS_COLUMNS if c not in losses]
+    if missing or losses.empty:
+        what = f"lacks the column(s) {', '.join(missing)}" if missing else "has no epoch"
+        raise CapeError(f"{path}: {what} (expected {', '.join(LOSS_COLUMNS)}); {fix}")
+    numbers = losses[list(LOSS_COLUMNS)].apply(pd.to_numeric, errors="coerce")
+    if numbers.isna().any().any():
+        raise CapeError(f"{path}: holds values that are not numbers; {fix}")
+    best = meta.get("best_val_loss")
+    if isinstance(best, bool) or not isinstance(best, int | float) or not math.isfinite(best):
+        raise CapeError(
+            f"{folder / 'meta.json'}: `best_val_loss` is {best!r}, not a finite number; {fix}"
+        )
+    epoch = meta.get("best_epoch")
+    if isinstance(epoch, bool) or not isinstance(epoch, int) or epoch < 0:
+        raise CapeError(f"{folder / 'meta.json'}: `best_epoch` is {epoch!r}, not an epoch; {fix}")
+    return numbers, meta
 
 
 def load_physics(

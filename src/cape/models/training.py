@@ -66,6 +66,11 @@ class TrainingResult:
     """The epoch a checkpoint had completed when this training resumed from it (0: none)."""
 
 
+CHECKPOINT_KEYS = ("model", "optimiser", "generator", "rng", "best_state", "losses",
+                   "best_epoch", "best_val_loss", "wall_seconds")  # fmt: skip
+"""What a resumed training reads from its checkpoint."""
+
+
 @dataclass(frozen=True)
 class Checkpointing:
     """Where an interrupted training resumes from (``path``), and how often it is written.
@@ -93,9 +98,12 @@ class Checkpointing:
             raise CapeError(f"{self.path}: not a readable checkpoint ({exc}); {fix}") from exc
         if not isinstance(state, dict) or state.get("fingerprint") != self.fingerprint:
             raise CapeError(
-                f"{self.path}: a checkpoint of another training (another config, data set or "
-                f"seed), not resumed; {fix}"
+                f"{self.path}: a checkpoint of another training (another config, data set, "
+                f"seed or kernels), not resumed; {fix}"
             )
+        missing = [k for k in CHECKPOINT_KEYS if k not in state]
+        if missing:
+            raise CapeError(f"{self.path}: lacks {', '.join(missing)}, not resumed; {fix}")
         return state
 
     def save(self, state: dict[str, Any]) -> None:

@@ -8,7 +8,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from cape.plots import style  # noqa: F401  (the headless backend)
+from cape.plots.style import nothing_to_draw  # also the headless backend
 
 
 def _label(scope: str) -> str:
@@ -21,6 +21,8 @@ def claim_effects(effects: pd.DataFrame) -> plt.Figure:
     """One panel per claim, one band per comparison: each draw's interval over its seeds (thin)
     and the interval over the draws (thick, black), the paper's value (a red diamond) and zero
     (the verdict's line)."""
+    if effects.empty:
+        return nothing_to_draw("no closed-loop claim could be evaluated on the paper's study")
     claims = list(dict.fromkeys(effects["claim"]))
     heights = [max(1, effects[effects["claim"] == c]["comparison"].nunique()) for c in claims]
     fig, axes = plt.subplots(

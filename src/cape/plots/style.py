@@ -33,3 +33,12 @@ def save_figure(fig: plt.Figure, *paths: str | Path, dpi: int = PNG_DPI) -> None
         rendered[path] = buffer.getvalue()
     write_files(rendered)
     plt.close(fig)
+
+
+def nothing_to_draw(why: str) -> plt.Figure:
+    """A figure that says why it is empty (a study with no runs to draw, no claim evaluated):
+    the notebook still writes every output it declares, instead of failing inside Matplotlib."""
+    fig, ax = plt.subplots(figsize=(6, 1.6))
+    ax.text(0.5, 0.5, f"Nothing to draw: {why}", ha="center", va="center", wrap=True)
+    ax.set_axis_off()
+    return fig

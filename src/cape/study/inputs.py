@@ -3,7 +3,6 @@ draw, and each draw's training record (loss.csv, meta.json) for the health check
 
 from __future__ import annotations
 
-import json
 import re
 from collections.abc import Sequence
 from pathlib import Path
@@ -29,10 +28,11 @@ def read_trainings(
 ) -> tuple[dict[tuple[int, str], pd.DataFrame], dict[tuple[int, str], float]]:
     """(replicate, model) → loss.csv and → meta.json's best validation loss, for the training
     checks of ``cape.models.health``."""
+    from cape.models.trained import read_training
+
     losses, best = {}, {}
     for r in replicates:
         for m in models:
-            folder = Path(model_root, f"rep{r}", m)
-            losses[(r, m)] = pd.read_csv(folder / "loss.csv")
-            best[(r, m)] = float(json.loads((folder / "meta.json").read_text())["best_val_loss"])
+            losses[(r, m)], meta = read_training(Path(model_root, f"rep{r}", m))
+            best[(r, m)] = float(meta["best_val_loss"])
     return losses, best
