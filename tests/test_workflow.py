@@ -401,10 +401,11 @@ def test_a_damaged_run_stops_what_reads_it_and_is_recomputed_once_deleted(
 def test_deleted_outputs_are_rebuilt_with_everything_downstream(
     smoke_study: Path, tmp_path: Path
 ) -> None:
-    """In a copy of the smoke study: runs deleted, then only runs.parquet asked for: the runs
-    are recomputed and the table lists them again. Then a model folder, a table, a figure and
-    a notebook deleted: rerunning the targets that contain them rebuilds each, and what depends
-    on the model (its exported network, its runs, the aggregation, the scorecard)."""
+    """In a copy of the smoke study, a model folder, runs, a table, a figure and a notebook
+    deleted: rerunning the targets that contain them rebuilds each, and what depends on them
+    (the model's exported network, its runs, the aggregation, the scorecard); runs.parquet
+    lists exactly the runs there are. Asked for alone, runs.parquet says its runs are missing
+    and which command rebuilds them."""
     import pandas as pd
 
     work = tmp_path / "copy"
@@ -413,13 +414,9 @@ def test_deleted_outputs_are_rebuilt_with_everything_downstream(
     runs = sorted((work / "results/runs/learned/rep0").rglob("metrics.json"))[:3]
     for metrics in runs:
         shutil.rmtree(metrics.parent)
-    direct = _snakemake(*common, "results/study/runs.parquet", timeout=900)
-    assert direct.returncode == 0, direct.stdout[-3000:] + direct.stderr[-3000:]
-    assert "3 of its runs are missing" in direct.stderr
-    assert all(m.is_file() for m in runs)
-    table = pd.read_parquet(work / "results/study/runs.parquet")
-    assert len(table) == len(pd.read_parquet(smoke_study / "results/study/runs.parquet"))
-
+    direct = _snakemake("results/study/runs.parquet", "-n", *common, timeout=600)
+    assert "results/study/runs.parquet: 3 of its runs are missing" in direct.stderr
+    assert "`snakemake --cores 2 all` rebuilds them and it" in direct.stderr
     model = work / "results/models/rep1/dpm"
     network = (model / "network.npz").read_bytes()
     dpm_run = work / "results/runs/learned/rep1/dpm/dpm/pid/eta0/seed0/metrics.json"
@@ -433,10 +430,14 @@ def test_deleted_outputs_are_rebuilt_with_everything_downstream(
     for path in deleted:
         path.unlink()
     before = dpm_run.stat().st_mtime
-    again = _snakemake(*common, "all", "replicates", timeout=1500)
+    again = _snakemake("all", "replicates", *common, timeout=1500)
     assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
     assert all(p.is_file() for p in deleted) and (model / "model.pt").is_file()
     assert (model / "network.npz").read_bytes() == network  # the same seed: the same network
     assert dpm_run.stat().st_mtime > before  # its runs were recomputed on the new files
-    nothing = _snakemake(*common, "all", "replicates", "-n", timeout=600)
+    assert all(m.is_file() for m in runs)
+    table = pd.read_parquet(work / "results/study/runs.parquet")
+    assert len(table) == len(pd.read_parquet(smoke_study / "results/study/runs.parquet"))
+    assert all((work / folder / "metrics.json").is_file() for folder in table["folder"])
+    nothing = _snakemake("all", "replicates", "-n", *common, timeout=600)
     assert "Nothing to be done" in nothing.stdout + nothing.stderr

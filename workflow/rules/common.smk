@@ -16,7 +16,7 @@ from cape.locks import clear_stale_locks
 from cape.models.registry import model_class
 from cape.study.grid import RunId, canonical, check_grid_size, study_runs
 from cape.study.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS
-from cape.study.stale import age_if_incomplete
+from cape.study.stale import missing_runs
 from cape.tracks.manifest import BAYESRACE_FILES
 
 

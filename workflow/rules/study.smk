@@ -209,17 +209,19 @@ rule replicates:
     localrule: True
 
 
-# A scope's runs.parquet that lists runs whose files were deleted is aged, so that any target
-# that reads it rebuilds the runs and then it (cape/study/stale.py).
+
+# A scope's runs.parquet whose runs are not all there: the targets that name every file rebuild
+# them and it; asked for alone it would stay as it is, so say so (cape/study/stale.py).
 if workflow.is_main_process:
     for _scope, _replicates in SCOPES.items():
-        _missing = age_if_incomplete(
-            job_outputs("aggregate", scope=_scope),
+        _missing = missing_runs(
+            f"{_scope}/study/runs.parquet",
             (f"{run.folder()}/metrics.json" for run in computed_runs(set(_replicates))),
         )
         if _missing:
+            _target = "all" if _scope == "results" else "replicates"
             print(
                 f"{_scope}/study/runs.parquet: {len(_missing)} of its runs are missing (e.g. "
-                f"{_missing[0].parent}); they and it will be rebuilt",
+                f"{_missing[0].parent}); `snakemake --cores 2 {_target}` rebuilds them and it",
                 file=sys.stderr,
             )
