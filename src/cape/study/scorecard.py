@@ -196,8 +196,8 @@ def _why(ev: _Evaluation, row: Mapping[str, Any], pair: Pair, causes: Sequence[s
             cause = f"the training draws disagree ({said})"
         elif per[0] != INCONCLUSIVE:
             cause = (
-                f"every network's verdict is {per[0]}, but {row['draws']} draws this far apart "
-                "do not decide the class"
+                f"every network {per[0]} on its own seeds, but {row['draws']} draws this far "
+                "apart do not decide the class"
             )
         else:
             cause = "within the spread of the seeds in every draw"
