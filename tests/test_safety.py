@@ -479,10 +479,10 @@ def test_a_checkpoint_of_another_training_is_refused(tmp_path: Path) -> None:
     """A checkpoint whose content was written for another fingerprint (copied or renamed by
     hand) is refused with the fix, never resumed."""
     from cape.errors import CapeError
-    from cape.models.training import Checkpointing
+    from cape.models.training import CHECKPOINT_KEYS, Checkpointing
 
     path = tmp_path / "checkpoint.pt"
-    Checkpointing(path, "a" * 64).save({"losses": []})
+    Checkpointing(path, "a" * 64).save(dict.fromkeys(CHECKPOINT_KEYS, 0))
     assert Checkpointing(path, "a" * 64).load() is not None
     with pytest.raises(CapeError, match=r"checkpoint of another training .* not resumed; delete"):
         Checkpointing(path, "b" * 64).load()
@@ -775,7 +775,9 @@ def test_a_kernel_pin_in_the_config_trains_as_the_environment_variable_does(
     by_config = train("config", pinned)
     by_hand = train("hand", plain, MKL_CBWR="AVX2")
     assert by_config["weights_sha256"] == by_hand["weights_sha256"]
-    assert by_config["kernels"] == {"mkl_cbwr": "AVX2"} and by_hand["kernels"] == {}
+    # both record what chose the kernels: the pin, or the variable set by hand (issue 29)
+    assert by_config["kernels"] == {"mkl_cbwr": "AVX2"}
+    assert by_hand["kernels"] == {"MKL_CBWR": "AVX2"}
 
 
 def test_a_kernel_pin_is_refused_once_pytorch_is_loaded(monkeypatch) -> None:

@@ -103,7 +103,7 @@ def cmd_train(args: argparse.Namespace) -> None:
     }
     for option, (value, least) in counts.items():
         if value is not None and not (math.isfinite(value) and value >= least):  # NaN too
-            raise CapeError(f"{option} {value}: give a finite number of at least {least}")
+            raise CapeError(f"{option} {value}: give a number of at least {least}")
     spec = _model_spec(config, args.model)
     _check_model_folder(Path(args.out), args.model, args.replicate)  # before training
     data_cfg, train_cfg = section(config, "data"), section(config, "training")
