@@ -215,7 +215,7 @@ def test_networks_that_agree_can_leave_the_class_undecided() -> None:
     row = table.iloc[0]
     assert [row[f"verdict rep{r}"] for r in range(3)] == [HOLDS] * 3
     assert row["verdict"] == INCONCLUSIVE and row["why"].startswith(
-        "every network holds on its own seeds"
+        "every draw's own verdict is holds"
     )
     assert int(row["draws needed"]) > 3
 

@@ -196,7 +196,7 @@ def _why(ev: _Evaluation, row: Mapping[str, Any], pair: Pair, causes: Sequence[s
             cause = f"the training draws disagree ({said})"
         elif per[0] != INCONCLUSIVE:
             cause = (
-                f"every network {per[0]} on its own seeds, but {row['draws']} draws this far "
+                f"every draw's own verdict is {per[0]}, but {row['draws']} draws this far "
                 "apart do not decide the class"
             )
         else:
