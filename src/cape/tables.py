@@ -99,18 +99,21 @@ def write_table(
     paths: Sequence[str | Path],
     formats: Mapping[str, str | Formatter] | None = None,
     caption: str = "",
+    csv_only: Sequence[str] = (),
 ) -> None:
     """Write ``frame`` to each path, the format chosen by its suffix (.csv, .md, .tex): all
-    or none (``cape.io.write_files``)."""
+    or none (``cape.io.write_files``). ``csv_only``: columns for programs, not for readers
+    (e.g. a model's weights digest), left out of the .md and .tex copies."""
     texts: dict[str | Path, bytes] = {}
+    shown = frame.drop(columns=[c for c in csv_only if c in frame.columns])
     for path in paths:
         suffix = Path(path).suffix
         if suffix == ".csv":
             text = frame.to_csv(index=False, float_format="%.10g")
         elif suffix == ".md":
-            text = (f"{caption}\n\n" if caption else "") + to_markdown(frame, formats)
+            text = (f"{caption}\n\n" if caption else "") + to_markdown(shown, formats)
         elif suffix == ".tex":
-            text = to_latex(frame, formats, caption)
+            text = to_latex(shown, formats, caption)
         else:
             raise ValueError(f"{path}: unsupported table format {suffix!r} (use .csv, .md or .tex)")
         texts[path] = text.encode("utf-8")

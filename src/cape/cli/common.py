@@ -121,6 +121,27 @@ def _load_npz(path: str) -> dict[str, Any]:
         return {k: npz[k] for k in npz.files}
 
 
+PROVENANCE_COLUMNS = ("replicate", "weights_sha256")
+
+
+def _with_provenance(table: Any, items: list[str]) -> Any:
+    """``table`` (one row per model, column ``model``) with the training replicate and the
+    weights digest of each ``NAME=DIR`` model it was computed from (cape.study.inputs checks
+    them against the current models)."""
+    from cape.closedloop.provenance import model_replicate
+    from cape.models.trained import read_meta
+
+    made = {}
+    for item in items:
+        name, _, folder = item.partition("=")
+        meta = read_meta(folder)
+        made[name] = (model_replicate(Path(folder), meta), str(meta.get("weights_sha256") or ""))
+    table = table.copy()
+    table["replicate"] = [made[m][0] for m in table["model"]]
+    table["weights_sha256"] = [made[m][1] for m in table["model"]]
+    return table
+
+
 def _load_models(items: list[str]) -> dict[str, Any]:
     """``NAME=DIR`` pairs → trained models, in the order given."""
     from cape.models.checkpoint import load_model

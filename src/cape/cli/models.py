@@ -11,12 +11,14 @@ from pathlib import Path
 from typing import Any
 
 from cape.cli.common import (
+    PROVENANCE_COLUMNS,
     _add_config_args,
     _add_models,
     _add_outputs,
     _config,
     _load_models,
     _load_npz,
+    _with_provenance,
     command,
 )
 from cape.errors import CapeError
@@ -335,10 +337,10 @@ def cmd_openloop(args: argparse.Namespace) -> None:
         )
         + "."
     )
-    write_table(
-        table, args.out, formats={c: ".3e" for c in table.columns if c != "model"}, caption=caption
-    )
-    print(table.to_string(index=False))
+    formats = {c: ".3e" for c in table.columns if c != "model"}
+    table = _with_provenance(table, args.model)
+    write_table(table, args.out, formats=formats, caption=caption, csv_only=PROVENANCE_COLUMNS)
+    print(table.drop(columns=list(PROVENANCE_COLUMNS)).to_string(index=False))
 
 
 def _complexity_arguments(p: argparse.ArgumentParser) -> None:
@@ -373,8 +375,9 @@ def cmd_complexity(args: argparse.Namespace) -> None:
         "layers, FLOPs per prediction (millions, counted by PyTorch's flop counter) and the "
         "median time of one single-window Φ prediction on the fast path (ms, this CPU, 1 thread)."
     )
-    write_table(table, args.out, formats=formats, caption=caption)
-    print(table.to_string(index=False))
+    table = _with_provenance(table, args.model)
+    write_table(table, args.out, formats=formats, caption=caption, csv_only=PROVENANCE_COLUMNS)
+    print(table.drop(columns=list(PROVENANCE_COLUMNS)).to_string(index=False))
 
 
 def _plot_models_arguments(p: argparse.ArgumentParser) -> None:

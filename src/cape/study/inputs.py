@@ -9,18 +9,58 @@ from pathlib import Path
 
 import pandas as pd
 
+from cape.errors import CapeError
 
-def read_replicate_tables(paths: str | Sequence[str]) -> dict[int, pd.DataFrame]:
+
+def read_replicate_tables(
+    paths: str | Sequence[str], model_root: str | Path | None = None
+) -> dict[int, pd.DataFrame]:
     """Replicate → table, from ``results/tables/rep<r>/<table>.csv`` paths (comma-separated in
-    a notebook's parameter)."""
+    a notebook's parameter). With ``model_root``, each row must have been computed from its
+    replicate's current model in ``model_root/rep<r>/<model>`` (the table's ``replicate`` and
+    ``weights_sha256`` columns, written by ``cape openloop`` and ``cape complexity``);
+    ``CapeError`` names the table, the model and the fix otherwise."""
     items = paths.split(",") if isinstance(paths, str) else list(paths)
     tables = {}
     for item in (p for p in items if p):
         match = re.fullmatch(r"rep([0-9]+)", Path(item).parent.name)
         if match is None:
-            raise ValueError(f"{item}: not a replicate's table (…/rep<r>/<table>.csv)")
-        tables[int(match.group(1))] = pd.read_csv(item)
+            raise CapeError(f"{item}: not a replicate's table (…/rep<r>/<table>.csv)")
+        try:
+            table = pd.read_csv(item)
+        except FileNotFoundError:
+            raise CapeError(f"{item}: missing; build it (snakemake --cores 2 {item})") from None
+        except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+            raise CapeError(f"{item}: unreadable ({exc}); delete it and rebuild it") from None
+        replicate = int(match.group(1))
+        if model_root is not None:
+            check_table_models(table, item, replicate, Path(model_root))
+        tables[replicate] = table
     return tables
+
+
+def check_table_models(table: pd.DataFrame, path: str, replicate: int, model_root: Path) -> None:
+    """Every row of the replicate's table ``path`` was computed from the model now in
+    ``model_root/rep<replicate>/<model>`` (same training replicate, same weights digest)."""
+    from cape.models.trained import read_meta
+
+    fix = f"the table is stale: delete it and rebuild it (snakemake --cores 2 {path})"
+    if "model" not in table.columns:
+        raise CapeError(f"{path}: has no model column; {fix}")
+    if not {"replicate", "weights_sha256"} <= set(table.columns):
+        raise CapeError(
+            f"{path}: records no model weights (written by an earlier version of cape); {fix}"
+        )
+    for row in table.itertuples(index=False):
+        folder = model_root / f"rep{replicate}" / str(row.model)
+        digest = str(read_meta(folder).get("weights_sha256") or "")
+        made, found = row.replicate, str(row.weights_sha256)
+        if pd.isna(made) or int(made) != replicate or found != digest:
+            raise CapeError(
+                f"{path}: its {row.model} row was computed from replicate {made}'s network "
+                f"(weights {found[:12]}…), but replicate {replicate}'s is {folder} (weights "
+                f"{digest[:12]}…); {fix}"
+            )
 
 
 def read_trainings(
