@@ -441,3 +441,39 @@ def test_deleted_outputs_are_rebuilt_with_everything_downstream(
     assert all((work / folder / "metrics.json").is_file() for folder in table["folder"])
     nothing = _snakemake("all", "replicates", "-n", *common, timeout=600)
     assert "Nothing to be done" in nothing.stdout + nothing.stderr
+
+
+@pytest.mark.slow
+def test_notebooks_with_nothing_to_draw_say_so_and_write_their_outputs(tmp_path: Path) -> None:
+    """Through the real `snakemake`: the learned, bicycle and ablation studies limited to
+    replicate 1 leave the default target (replicate 0) nothing of theirs to draw; every notebook
+    still runs, each figure and table it declares says why it is empty and which command
+    computes the runs, and RESULTS.md lists the paper's closed-loop claims as not evaluated.
+    Then `study.paper` naming a study without the claims' runs: the same rows, another why."""
+    work = _workdir(tmp_path)
+    shutil.copy(REPO_ROOT / "config" / "smoke.yaml", work / "config" / "smoke.yaml")
+    elsewhere = {s: {"replicates": [1]} for s in ("learned", "bicycle", "ablation")}
+    elsewhere["truth"] = {"internal": ["truth"], "controllers": ["pid"]}
+    (work / "config" / "rep1.yaml").write_text(yaml.safe_dump({"study": {"studies": elsewhere}}))
+    (work / "config" / "paper.yaml").write_text(yaml.safe_dump({"study": {"paper": "truth"}}))
+    common = ["--cores", "2", "-d", str(work), "--configfile", "config/smoke.yaml"]
+    rep1, paper = str(work / "config" / "rep1.yaml"), str(work / "config" / "paper.yaml")
+    result = _snakemake("all", *common, rep1, timeout=1500)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    why = "this target holds no run of the learned study, which runs for training replicate(s) 1"
+    for name, study in (("learned", "learned"), ("bicycle", "bicycle"), ("ablation", "ablation")):
+        cells = json.loads((work / f"results/notebooks/{name}.ipynb").read_text())["cells"]
+        printed = "".join("".join(o.get("text", "")) for c in cells for o in c.get("outputs", []))
+        assert f"Nothing to draw: this target holds no run of the {study} study" in printed
+        for figure in STUDY_NOTEBOOKS[name.replace("learned", "closed_loop")].figures:
+            assert (work / f"results/figures/{study}/{figure}.png").is_file(), figure
+    table6 = (work / "results/tables/learned/table06_metrics_eta1.md").read_text()
+    assert "nothing to show" in table6 and why in table6
+    glance = (work / "results/RESULTS.md").read_text()
+    assert "## Not evaluated:" in glance
+    assert f"EPM − DDM: not evaluated: {why}" in glance
+    assert "not evaluated: no run of DPM-fixed in a bicycle study of this target" in glance
+    again = _snakemake("results/RESULTS.md", *common, rep1, paper)
+    assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
+    glance = (work / "results/RESULTS.md").read_text()
+    assert "EPM − DDM: not evaluated: the paper's study has no runs of anmpc" in glance

@@ -45,6 +45,32 @@ def controller_labels(config: Mapping[str, Any]) -> dict[str, str]:
     return {name: str(entry.get("label", name)) for name, entry in config["controllers"].items()}
 
 
+def nothing_here(runs: pd.DataFrame, config: Mapping[str, Any], study: str) -> str:
+    """Why this target holds no run of ``study`` to draw ('' when it holds some): a notebook
+    with nothing to draw says so in each figure and table it writes (``nothing_to_draw``,
+    ``nothing_table``) instead of failing inside Matplotlib."""
+    if len(runs):
+        return ""
+    grid = config["study"]["studies"].get(study)
+    if grid is None:
+        return f"the config has no study {study!r}"
+    replicates = grid.get("replicates", [0])
+    which = (
+        "every training replicate"
+        if replicates == "all"
+        else "training replicate(s) " + ", ".join(str(r) for r in replicates)
+    )
+    return (
+        f"this target holds no run of the {study} study, which runs for {which}; the default "
+        "target reads replicate 0, `snakemake --cores 2 replicates` reads every replicate"
+    )
+
+
+def nothing_table(why: str) -> pd.DataFrame:
+    """A table that says why it is empty (see ``nothing_here``)."""
+    return pd.DataFrame({"nothing to show": [why]})
+
+
 def run_dir(root: str | Path, row: Mapping[str, Any]) -> Path:
     """The folder of the run described by ``row`` of runs.parquet: where it was computed (a run
     two studies share lives in one of their folders), else the one its identity names."""
