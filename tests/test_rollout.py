@@ -180,6 +180,61 @@ def test_a_non_finite_state_is_a_diverged_run(config, setting) -> None:
     assert result.metrics["failure"] == "diverged" and result.metrics["steps"] == 5
 
 
+class _RunawayPlant:
+    """The ground-truth car until step ``at``, then a yaw rate that triples every step (as
+    DPM replicate 2's plant ran −7 → −87 rad/s in five steps, SPEC §5.3)."""
+
+    def __init__(self, at: int) -> None:
+        self.truth = TruthPlant(GROUND_TRUTH.as_dict(), TS)
+        self.at, self.k = at, 0
+
+    def reset(self, x0):
+        self.truth.reset(x0)
+        self.k = 0
+
+    def step(self, u):
+        self.k += 1
+        x = self.truth.step(u)
+        if self.k >= self.at:
+            x = x.copy()
+            x[5] = -7.0 * 3.0 ** (self.k - self.at)
+            self.truth.reset(x)
+        return x
+
+
+def test_a_plant_that_runs_away_is_plant_diverged_not_the_controllers_failure(
+    config, setting, datasets
+) -> None:
+    """A yaw rate beyond 3× the training data's largest ends the run as plant_diverged at the
+    step it left the envelope, with the state there; without the envelope the same run is
+    filed as the controller's failure. The ground-truth car's lap stays well inside it."""
+    from cape.closedloop.envelope import Envelope
+
+    envelope = Envelope.of_data(datasets["ETHZ"], 3.0)
+    largest = np.abs(datasets["ETHZ"]["states"][5]).max()
+    assert envelope.limits[2] == pytest.approx(3 * largest)
+    track, line = setting
+    dist = DisturbancePipeline.from_config(config["disturbances"], 0.0, 0)
+    r = config["rollout"]
+    limits = {k: r[k] for k in ("horizon", "time_limit", "vx0", "penalty")}
+    pid = _controller(config, setting, "pid")
+    ran = run_lap(_RunawayPlant(at=100), pid, line, track, dist, **limits, envelope=envelope)
+    m = ran.metrics
+    first_beyond = 100 + int(np.ceil(np.log(envelope.limits[2] / 7.0) / np.log(3.0)))
+    assert m["failure"] == "plant_diverged" and not m["success"]
+    assert m["plant_diverged_step"] == first_beyond == m["steps"]
+    assert abs(m["plant_diverged_omega"]) > envelope.limits[2] > 7.0 * 3 ** (first_beyond - 101)
+    assert m["lap_time_penalised"] == r["penalty"]["lap_time"]  # a failed lap, as every failure
+    unbounded = run_lap(_RunawayPlant(at=100), _controller(config, setting, "pid"), line, track,
+                        dist, **limits)  # fmt: skip
+    assert unbounded.metrics["failure"] in ("off_track", "diverged")
+    assert unbounded.metrics["plant_diverged_step"] is None
+    truth = _run(config, setting, _controller(config, setting, "pid"))
+    assert truth.metrics["success"]
+    peaks = [np.abs(truth.series[v]).max() for v in ("vx", "vy", "omega")]
+    assert all(p < limit / 2 for p, limit in zip(peaks, envelope.limits, strict=True)), peaks
+
+
 def test_a_run_that_never_finishes_times_out_at_15_s(config, setting) -> None:
     result = _run(config, setting, _Constant([0.0, 0.0], setting[1]), plant=_NaNPlant(at=10**9))
     assert result.metrics["failure"] == "timeout"

@@ -53,9 +53,13 @@ def one_message(result: subprocess.CompletedProcess, *needles: str) -> str:
 
 
 @pytest.fixture(scope="module")
-def setup(track_dir: Path, config: dict, tmp_path_factory: pytest.TempPathFactory) -> dict:
-    """A config file pointing at the verified tracks, and the reference raceline."""
+def setup(
+    track_dir: Path, config: dict, datasets: dict, tmp_path_factory: pytest.TempPathFactory
+) -> dict:
+    """A config file pointing at the verified tracks, the reference raceline and the training
+    data set (whose states bound a learned plant)."""
     root = tmp_path_factory.mktemp("safety")
+    np.savez(root / "ethz.npz", **datasets["ETHZ"])
     cfg = copy.deepcopy(config)
     cfg["tracks"]["dir"] = str(track_dir)
     cfg["tracks"]["mirror"] = str(track_dir)
@@ -73,7 +77,8 @@ def setup(track_dir: Path, config: dict, tmp_path_factory: pytest.TempPathFactor
     )
     raceline = root / "line.npz"
     np.savez(raceline, **sealed_arrays({"x": rl.x, "y": rl.y, "speed": rl.speed}))
-    return {"root": root, "config": config_file, "raceline": raceline, "cfg": cfg}
+    return {"root": root, "config": config_file, "raceline": raceline, "cfg": cfg,
+            "data": root / "ethz.npz"}  # fmt: skip
 
 
 def rollout_args(setup: dict, out: Path, config: Path | None = None, **names: str) -> list[str]:
@@ -83,6 +88,7 @@ def rollout_args(setup: dict, out: Path, config: Path | None = None, **names: st
     run.update(names)
     options = [item for key, value in run.items() for item in (f"--{key}", value)]
     return ["cape", "rollout", *options, "--out", str(out), "--raceline", str(setup["raceline"]),
+            "--training-data", str(setup["data"]),
             "--config", str(config or setup["config"])]  # fmt: skip
 
 
@@ -401,6 +407,53 @@ def test_a_run_is_tied_to_its_replicates_networks(
     one_message(stale, str(out), "plant model dpm", recorded["weights_sha256"][:12],
                 json.loads((folder / "meta.json").read_text())["weights_sha256"][:12],
                 f"rm -r {out}")  # fmt: skip
+
+
+def test_a_model_table_is_tied_to_its_replicates_networks(
+    setup: dict, datasets: dict, tmp_path: Path
+) -> None:
+    """Tables 1 and 4 record each row's replicate and weights digest (in the .csv, not in what a
+    reader opens); the scorecard's reader refuses a table computed from another replicate's
+    network or from weights retrained since, naming the table, the model and the fix."""
+    from cape.cli import main
+    from cape.errors import CapeError
+    from cape.study.inputs import read_replicate_tables
+
+    train_data, test_data = tmp_path / "ethz.npz", tmp_path / "mobil.npz"
+    np.savez(train_data, **datasets["ETHZ"])
+    np.savez(test_data, **datasets["ETHZMobil"])
+    models = tmp_path / "models"
+    config = ["--config", str(setup["config"])]
+    for r in (0, 1):
+        folder = str(models / f"rep{r}" / "dpm")
+        train = ["train", "--model", "dpm", "--replicate", str(r), "--data", str(train_data)]
+        assert main([*train, "--out", folder, "--epochs", "1", "--seed", str(r), *config]) == 0
+    tables = tmp_path / "tables" / "rep0"
+    openloop = ["openloop", "--train-data", str(train_data), "--test-data", str(test_data)]
+    complexity = ["complexity", "--data", str(test_data)]
+    for command, name in (
+        (openloop, "table04_openloop_rmse"),
+        (complexity, "table01_model_complexity"),
+    ):
+        csv, md = tables / f"{name}.csv", tables / f"{name}.md"
+        made = cape(*command, "--model", f"dpm={models / 'rep0' / 'dpm'}", "--out", str(csv),
+                    "--out", str(md), *config)  # fmt: skip
+        assert made.returncode == 0, made.stderr
+        assert "weights_sha256" not in md.read_text()
+        assert read_replicate_tables(str(csv), models)[0]["replicate"].tolist() == [0]
+        misfiled = cape(*command, "--model", f"dpm={models / 'rep1' / 'dpm'}", "--out", str(csv),
+                        *config)  # fmt: skip
+        assert misfiled.returncode == 0, misfiled.stderr
+        with pytest.raises(CapeError, match="computed from replicate 1's network") as refused:
+            read_replicate_tables(str(csv), models)
+        assert str(csv) in str(refused.value) and f"snakemake --cores 2 {csv}" in str(refused.value)
+    retrain = ["train", "--model", "dpm", "--data", str(train_data), "--out",
+               str(models / "rep0" / "dpm"), "--epochs", "1", "--seed", "7", *config]  # fmt: skip
+    assert cape(*openloop, "--model", f"dpm={models / 'rep0' / 'dpm'}", "--out",
+                str(tables / "table04_openloop_rmse.csv"), *config).returncode == 0  # fmt: skip
+    assert cape(*retrain).returncode == 0
+    with pytest.raises(CapeError, match=r"replicate 0's is .*rep0/dpm .*stale"):
+        read_replicate_tables(str(tables / "table04_openloop_rmse.csv"), models)
 
 
 def test_the_kernel_environment_is_part_of_a_trainings_identity(

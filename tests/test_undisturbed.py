@@ -87,3 +87,23 @@ def test_each_failed_cell_names_its_cause(tmp_path: Path) -> None:
     assert f"{rear_slid:.2f} rad rear" in slid and f"and {rear_true:.2f} rad (2 laps)" in slid
     assert "this replicate's DDM training failed" in by_cell["replicate 1, DDM plant, pid"]
     assert by_cell["replicate 2, DDM plant, pid"].endswith("not explained")
+
+
+def test_each_plants_failures_are_counted_apart_from_its_controllers() -> None:
+    """RESULTS.md's count: per study and plant, the failed runs and how many of them were the
+    plant's own (plant_diverged), beside the controllers' (off track, timeout)."""
+    from cape.study.tables import plant_failures
+
+    runs = pd.DataFrame(
+        {
+            "study": ["learned"] * 5 + ["truth"] * 2,
+            "plant": ["dpm", "dpm", "dpm", "epm", "epm", "truth", "truth"],
+            "success": [False, False, True, True, False, True, False],
+            "failure": ["plant_diverged", "plant_diverged", None, None, "off_track", None,
+                        "timeout"],
+        }
+    )  # fmt: skip
+    table = plant_failures(runs).set_index(["study", "plant"])
+    assert table.loc[("learned", "dpm")].tolist() == [3, 2, 2]
+    assert table.loc[("learned", "epm")].tolist() == [2, 1, 0]
+    assert table.loc[("truth", "truth")].tolist() == [2, 1, 0]

@@ -155,6 +155,15 @@ def _check_grid(config: dict[str, Any], source: str) -> None:
             f"`study.studies` ({', '.join(config['study']['studies'])}); name one of those, "
             "or set it to null for a grid without the paper's study (and no scorecard)"
         )
+    real_car = config["study"].get("real_car")
+    if real_car is not None:
+        grid = config["study"]["studies"].get(real_car)
+        if grid is None or list(grid.get("plants", [])) != ["truth"]:
+            raise CapeError(
+                f"{source}: field `study.real_car` names {real_car!r}, which is not a study of "
+                "`study.studies` whose plants are [truth]; name the ground-truth study, or set "
+                "it to null for a scorecard without the real car's rows"
+            )
     if paper is None:
         for study, grid in config["study"]["studies"].items():
             if grid.get("kind") == "bicycle":

@@ -132,6 +132,11 @@ def model_args(replicate=0):
     return " ".join(f"--model {shlex.quote(f'{m}={model_dir(m, replicate)}')}" for m in MODELS)
 
 
+def training_data_arg(input):
+    """``--training-data PATH`` for a run whose plant is bounded by the training data."""
+    return f"--training-data {shlex.quote(input.training_data)}" if "training_data" in input.keys() else ""
+
+
 def model_folder_args(input):
     """``--model NAME=DIR`` for each trained model a run or solver rule declares as input (its
     plant's and internal model's meta.json): the command reads the models the rule names."""
@@ -186,6 +191,8 @@ def rollout_inputs(wildcards):
     the run's replicate, and the controller's compiled solver for that internal model."""
     replicate = int(wildcards.replicate)
     inputs = {"raceline": raceline_path(), **model_inputs("plant", wildcards.plant, replicate)}
+    if wildcards.plant != "truth":  # its states bound a learned plant (SPEC §5.3)
+        inputs["training_data"] = dataset_path(config["data"]["train_track"])
     if uses_internal_model(wildcards.controller):
         inputs.update(model_inputs("internal", wildcards.internal, replicate))
     if compiles_solver(wildcards.controller):

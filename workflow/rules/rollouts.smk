@@ -31,6 +31,7 @@ rule rollout:
         cfg=lambda wildcards: rollout_config_json(wildcards.controller),
         out=lambda wildcards, output: os.path.dirname(output.metrics),
         models=lambda wildcards, input: model_folder_args(input),
+        data=lambda wildcards, input: training_data_arg(input),
     conda:
         CAPE_ENV
     log:
@@ -41,7 +42,7 @@ rule rollout:
         "cape rollout --study {wildcards.study} --plant {wildcards.plant}"
         " --controller {wildcards.controller} --internal {wildcards.internal}"
         " --eta {wildcards.eta} --seed {wildcards.seed} --replicate {wildcards.replicate}"
-        " --out {params.out:q} {params.models}"
+        " --out {params.out:q} {params.models} {params.data}"
         " --raceline {input.raceline:q} --config-json {params.cfg:q} > {log:q} 2>&1"
 
 

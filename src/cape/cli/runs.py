@@ -91,6 +91,11 @@ def _rollout_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--raceline", help="reference .npz (default: results/raceline/<track>.npz)")
     p.add_argument("--study", default="adhoc", help="the study the run belongs to (metrics.json)")
     p.add_argument(
+        "--training-data",
+        help="the data set whose states bound a learned or fixed-parameter plant (SPEC §5.3; "
+        "default: results/data/DYN-PP-<data.train_track>.npz)",
+    )
+    p.add_argument(
         "--replicate",
         default=0,
         type=int,
@@ -150,6 +155,7 @@ def cmd_rollout(args: argparse.Namespace) -> None:
         folders,
         args.raceline,
         validate=args.config_json is None,
+        envelope_data=args.training_data,
     )
     built = time.perf_counter()
     result = run()

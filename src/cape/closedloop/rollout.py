@@ -17,13 +17,17 @@ import numpy as np
 
 from cape import interrupt
 from cape.closedloop.disturbances import DisturbancePipeline
+from cape.closedloop.envelope import Envelope, divergence_record
 from cape.closedloop.plants import Plant
 from cape.controllers.base import Controller
 from cape.tracks.geometry import cross_track_error, wrap_angle
 from cape.tracks.reference import ProgressTracker, ReferenceLine
 from cape.tracks.track import Track
 
-FAILURES = ("off_track", "timeout", "diverged")
+FAILURES = ("off_track", "timeout", "diverged", "plant_diverged")
+"""A failed run's reasons: the car left the track, the lap took too long, the loop became
+non-finite, or a learned plant left the envelope of its training data (its own failure, not
+the controller's: cape.closedloop.envelope)."""
 
 
 @dataclass
@@ -56,9 +60,12 @@ def run_lap(
     vx0: float,
     penalty: dict[str, float],
     failure_window: float = 0.5,
+    envelope: Envelope | None = None,
 ) -> RolloutResult:
     """Drive one lap; never raises for a failed run (the failure, its reason and where it
-    happened are recorded: see ``failure_location``)."""
+    happened are recorded: see ``failure_location``). ``envelope``: a learned plant's, whose
+    state beyond it (or non-finite) ends the run as ``plant_diverged`` before the
+    disturbances act on it."""
     ts = line.ts
     max_steps = round(time_limit / ts)
     x = initial_state(line, vx0)
@@ -79,6 +86,7 @@ def run_lap(
     fallback_steps: list[bool] = []
     rescued, iterations = 0, []
     last_pose = x[:2].copy()
+    diverged: tuple[int, np.ndarray] | None = None
     centre_s = track.center.project(x[0], x[1]).s
     # signals are raised by the loop's own check, never inside a solver (cape.interrupt)
     with interrupt.deferred():
@@ -103,6 +111,10 @@ def run_lap(
             start = time.perf_counter()
             x_plant = plant.step(u_app)
             plant_s += time.perf_counter() - start
+            if envelope is not None and envelope.left(x_plant):
+                failure, diverged = "plant_diverged", (k + 1, np.array(x_plant, dtype=float))
+                steps = k + 1  # as for "diverged": the step that failed, not in the series
+                break
             x = disturbances.after_plant(x_plant)
             steps = k + 1
             if not np.isfinite(x).all():
@@ -135,6 +147,7 @@ def run_lap(
     table = np.array(rows, dtype=float).reshape(-1, len(SERIES_KEYS))
     series = {key: np.ascontiguousarray(table[:, j]) for j, key in enumerate(SERIES_KEYS)}
     metrics = summarise(series, failure, lap_time, steps, time_limit, penalty)
+    metrics.update(divergence_record(*(diverged or (None, None))))
     metrics["fallbacks"] = sum(fallback_steps)  # steps whose solve failed (model-based)
     metrics["rescues"] = rescued  # steps the SQP left to its IPOPT rescue
     metrics["solver_iterations_median"] = float(np.median(iterations)) if iterations else None

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from cape.closedloop.disturbances import DisturbancePipeline
+from cape.closedloop.envelope import Envelope
 from cape.closedloop.plants import FixedParameterPlant, LearnedPlant, Plant, TruthPlant
 from cape.closedloop.rollout import RolloutResult, run_lap
 from cape.config import section
@@ -152,6 +153,7 @@ class Run:
     disturbances: DisturbancePipeline
     settings: dict[str, Any]
     internal: str
+    envelope: Envelope | None = None
 
     def __call__(self) -> RolloutResult:
         s = self.settings
@@ -166,6 +168,7 @@ class Run:
             vx0=float(s["vx0"]),
             penalty=s["penalty"],
             failure_window=float(s.get("failure_window", 0.5)),
+            envelope=self.envelope,
         )
 
 
@@ -179,11 +182,14 @@ def build_run(
     models_dir: Path | ModelFolders,
     raceline: str | None = None,
     validate: bool = True,
+    envelope_data: str | None = None,
 ) -> Run:
     """Everything one run needs, from names; errors name the missing piece and the fix.
     ``models_dir``: where the trained models' folders are (a root, or a ``ModelFolders``).
     ``validate``: check the controller's settings against its schema (skipped for the config a
-    rule passes, which the workflow validated when it started)."""
+    rule passes, which the workflow validated when it started). ``envelope_data``: the training
+    data set whose states bound a learned or fixed-parameter plant (default
+    results/data/DYN-PP-<data.train_track>.npz; SPEC §5.3, ``rollout.plant_envelope``)."""
     models = section(config, "models")
     controllers = section(config, "controllers")
     ts = float(section(config, "data")["ts"])
@@ -214,6 +220,12 @@ def build_run(
     else:
         physics = load_physics(folders(str(model_name)), expected_name=model_name)
         plant = FixedParameterPlant(physics, frozen_phi(folders, str(model_name)), transform)
+    envelope = None
+    factor = section(config, "rollout").get("plant_envelope")
+    if kind != "truth" and factor is not None:
+        train_track = section(config, "data")["train_track"]
+        path = envelope_data or f"results/data/DYN-PP-{train_track}.npz"
+        envelope = Envelope.of_file(path, float(factor))
     cls = controller_class(controller_name, controllers[controller_name])
     if validate:  # a rule's config was validated when the workflow started
         validate_settings(cls, controller_name, controllers[controller_name])
@@ -246,4 +258,5 @@ def build_run(
         settings=section(config, "rollout"),
         # a controller without an internal model runs on none: its runs are named after the plant
         internal=(internal or default_internal) if cls.needs_internal_model else default_internal,
+        envelope=envelope,
     )

@@ -263,7 +263,7 @@ def trajectories(
     return fig
 
 
-FAILURE_MARKERS = dict(zip(FAILURES, ("o", "s", "X"), strict=True))
+FAILURE_MARKERS = dict(zip(FAILURES, ("o", "s", "X", "D"), strict=True))
 
 
 def failure_map(
@@ -311,8 +311,11 @@ def failure_map(
             stacks.append(mine_c["failure_fraction"].to_numpy(dtype=float))
             stack_colours.append(colours[controller])
             stack_labels.append(label)
-        top.set_title(f"{model_label(models, model)}: {len(failed)} of {len(mine)} runs failed",
-                      fontsize=9)  # fmt: skip
+        plants = int((failed["failure"] == "plant_diverged").sum())
+        title = f"{model_label(models, model)}: {len(failed)} of {len(mine)} runs failed"
+        if plants:
+            title += f",\n{plants} of them its plant's (plant diverged)"
+        top.set_title(title, fontsize=9)
         if stacks:
             bottom.hist(stacks, bins=bins, stacked=True, color=stack_colours, label=stack_labels)
         else:

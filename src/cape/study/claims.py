@@ -77,6 +77,13 @@ class ClosedLoopClaim:
     unit: str = ""
     per_seed: str = "mean"
     causes: tuple[Cause, ...] = ()
+    setting: str = "paper"
+    """Whose runs it reads: ``"paper"`` (the paper's study, ``study.paper``) or ``"real car"``
+    (the ground-truth study, ``study.real_car``: CAPE's own claims, no paper value)."""
+
+
+PAPER_SETTING = "paper"
+REAL_CAR = "real car"
 
 
 @dataclass(frozen=True)
@@ -155,6 +162,34 @@ def controllers(names: Sequence[str]) -> Selection:
 def at_eta(eta: float) -> Selection:
     """The runs at one disturbance level."""
     return Selection(f"runs at η = {eta:g}", lambda runs: runs["eta"] == eta)
+
+
+def both(first: Selection, second: Selection) -> Selection:
+    """The runs both selections keep."""
+    return Selection(
+        f"{first.what} among the {second.what}", lambda runs: first.keep(runs) & second.keep(runs)
+    )
+
+
+def own(pairs: tuple[Pair, ...], unit: str = "") -> tuple[Pair, ...]:
+    """The same comparisons as CAPE's own question: no paper value; the side tested is the
+    paper's on its learned plants (does its ordering carry over to the real car?)."""
+    return tuple(
+        Pair(
+            p.a,
+            p.b,
+            p.paper_effect,
+            f"none (CAPE's own); tested: {p.a.upper()} {'<' if p.paper_effect < 0 else '>'} "
+            f"{p.b.upper()}, the paper's side on its learned plants",
+        )
+        for p in pairs
+    )
+
+
+def _relative_between(model: str, other: str, percents: Mapping[str, float]) -> float:
+    """``model`` against ``other`` in %, from EPM's relative differences against both."""
+    ratio = (1 + percents[other] / 100) / (1 + percents[model] / 100)  # model/other
+    return 100 * (ratio - 1)
 
 
 def lap_time_bound(context: Context, pair: Pair) -> str:
@@ -247,6 +282,46 @@ CLOSED_LOOP: tuple[ClosedLoopClaim, ...] = (
     ),
 )
 """The paper's closed-loop claims (SPEC §10) on its main study."""
+
+REAL_CAR_CLAIMS: tuple[ClosedLoopClaim, ...] = (
+    ClosedLoopClaim(
+        "real car: adaptive NMPC lap time, penalised, mean over η (s), by its internal model",
+        controllers(["anmpc"]),
+        "lap_time_penalised",
+        own(ordering(paper.ADAPTIVE_LAP_TIME, " s")),
+        unit=" s",
+        causes=(lap_time_bound,),
+        setting=REAL_CAR,
+    ),
+    *(
+        ClosedLoopClaim(
+            f"real car: η = 1, mean over the NMPCs: {metric} (%), by their internal model",
+            both(at_eta(1.0), controllers(NMPCS)),
+            metric,
+            own(
+                (
+                    *relative("epm", anchors),
+                    Pair("ddm", "dpm", _relative_between("ddm", "dpm", anchors), ""),
+                )
+            ),
+            effect=RELATIVE,
+            unit=" %",
+            setting=REAL_CAR,
+        )
+        for metric, anchors in paper.ETA1_RELATIVE.items()
+    ),
+    ClosedLoopClaim(
+        "real car: NMPC-family failures of {cells} runs, by their internal model",
+        controllers(NMPCS),
+        FAILURES,
+        own(ordering({m: paper.NMPC_FAILURES[m] for m in ("epm", "ddm", "dpm")})),
+        per_seed="sum",
+        setting=REAL_CAR,
+    ),
+)
+"""CAPE's own claims (issue: which model drives the real car best): the paper's comparisons
+on the ground-truth plant, each learned model as the NMPCs' internal model; EPM against DDM and
+DPM, and DDM against DPM."""
 
 BICYCLE = BicycleClaim("best bicycle controller (replicate 0)", paper.BEST_BICYCLE)
 """The best fixed-parameter bicycle controller: replicate 0's bicycle study."""

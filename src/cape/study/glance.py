@@ -11,7 +11,9 @@ from collections.abc import Sequence
 
 import pandas as pd
 
+from cape.study.claims import REAL_CAR
 from cape.study.scorecard import NOT_EVALUATED, draws_of, holds_for_every_network, presented
+from cape.study.tables import plant_failures
 from cape.study.verdicts import CONTRADICTED, HOLDS, INCONCLUSIVE
 from cape.tables import number_formats, to_markdown
 
@@ -25,6 +27,30 @@ def _bullets(table: pd.DataFrame, mask: pd.Series, needed: bool = False) -> list
         more = f"; draws needed: {row['draws needed']}" if needed and row["draws needed"] else ""
         said = f"{row['claim']}, {row['comparison']}: ours {row['ours']}, paper {row['paper']}"
         lines.append(f"- {said}{more}{cause}")
+    return lines
+
+
+def _two_settings(table: pd.DataFrame) -> list[str]:
+    """Side by side: what holds on the learned plants (the paper's setting: its claims, with
+    the model and bicycle rows) and what holds on the real car (the ground-truth plant, CAPE's
+    own rows, when the scorecard has them)."""
+    setting = table["setting"] if "setting" in table else pd.Series("paper", index=table.index)
+    sets = [("paper", "The paper's claims (learned plants; models; bicycle)")]
+    if setting.eq(REAL_CAR).any():
+        sets.append((REAL_CAR, "On the real car: the ground-truth plant (CAPE's own)"))
+    kinds = (HOLDS, CONTRADICTED, INCONCLUSIVE, NOT_EVALUATED)
+    lines = ["| rows | " + " | ".join(kinds) + " |", "|---" * (len(kinds) + 1) + "|"]
+    for key, label in sets:
+        verdicts = table.loc[setting.eq(key), "verdict"]
+        cells = " | ".join(str(int(verdicts.eq(k).sum())) for k in kinds)
+        lines.append(f"| {label}: {len(verdicts)} | {cells} |")
+    if len(sets) > 1:
+        lines += [
+            "",
+            "On the real car each learned model is the NMPCs' internal model and the plant is the "
+            "ground truth: a row there holds when the paper's ordering carries over to the car "
+            "(no paper value; the interval says which way and how much).",
+        ]
     return lines
 
 
@@ -69,6 +95,7 @@ def at_a_glance(
     several = len(draws_of(table)) > 1
     scope = "over the training draws" if several else "for this training draw"
     lines = ["# CAPE results at a glance", "", *_intro(table, runs), ""]
+    lines += [*_two_settings(table), ""]
     verdicts = table["verdict"]
     lines += [f"## Holds {scope}: {int(verdicts.eq(HOLDS).sum())} of {len(table)} rows", ""]
     lines += [*_bullets(table, verdicts.eq(HOLDS)), ""]
@@ -130,6 +157,14 @@ def at_a_glance(
     lines += ["## Runs", "", "| study | runs | laps completed |", "|---|---|---|"]
     for study, group in runs.groupby("study", sort=False):
         lines.append(f"| {study} | {len(group)} | {group['success'].mean():.0%} |")
+    if len(runs) and "plant" in runs:
+        lines += [
+            "",
+            "A failed run is its plant's when a learned plant left the envelope of its training "
+            "data (`plant_diverged`, SPEC §5.3); every failure still counts as a failed lap.",
+            "",
+            to_markdown(plant_failures(runs)),
+        ]
     every_row = presented(table)
     lines += ["", "## Every row", "", to_markdown(every_row, number_formats(every_row))]
     return "\n".join(lines) + "\n"

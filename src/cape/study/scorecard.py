@@ -29,6 +29,9 @@ from cape.study.claims import (
     CLOSED_LOOP,
     FAILURES,
     MODEL,
+    PAPER_SETTING,
+    REAL_CAR,
+    REAL_CAR_CLAIMS,
     BicycleClaim,
     ClosedLoopClaim,
     Context,
@@ -208,11 +211,19 @@ def _why(ev: _Evaluation, row: Mapping[str, Any], pair: Pair, causes: Sequence[s
     return "; ".join([cause, *notes])
 
 
-def _not_evaluated(ev: _Evaluation, claim: str, comparison: str, paper: str, why: str) -> None:
+def _not_evaluated(
+    ev: _Evaluation,
+    claim: str,
+    comparison: str,
+    paper: str,
+    why: str,
+    setting: str = PAPER_SETTING,
+) -> None:
     """A row the study cannot evaluate: listed, with why, never dropped."""
     verdicts = {f"verdict rep{r}": NOT_EVALUATED for r in ev.replicates}
     ev.rows.append(
         {
+            "setting": setting,
             "claim": claim,
             "comparison": comparison,
             "paper": paper,
@@ -241,11 +252,12 @@ def _closed_loop(ev: _Evaluation, runs: pd.DataFrame, claim: ClosedLoopClaim) ->
             else:
                 whose = f" of {' or '.join(missing)}" if len(selected) else ""
                 why = f"the paper's study has no {claim.select.what}{whose}"
-            _not_evaluated(ev, name, comparison, pair.paper_text, why)
+            _not_evaluated(ev, name, comparison, pair.paper_text, why, claim.setting)
             continue
         verdicts, spans = _verdicts(ev, effects, pair)
         values = _both(pair, _mean_of(per, pair.a), _mean_of(per, pair.b))
         row = {
+            "setting": claim.setting,
             "claim": name,
             "comparison": comparison,
             "paper": pair.paper_text,
@@ -326,7 +338,7 @@ def _bicycle(
         paper = f"{name}, η ≤ {anchor['max_eta']:g}, {anchor['lap_time']:.2f} s"
         match = best[best["model"] == f"{model}-fixed"] if "model" in best else best
         if match.empty:
-            why = f"no bicycle study of {model.upper()}-fixed in the config"
+            why = f"no run of {model.upper()}-fixed in a bicycle study of this target (replicate 0)"
             _not_evaluated(ev, claim.name, f"{model.upper()} (fixed)", paper, why)
             continue
         r = match.iloc[0]
@@ -362,29 +374,53 @@ def evaluate_claims(
     claims: Sequence[ClosedLoopClaim] = CLOSED_LOOP,
     model_claims: Sequence[ModelClaim] = MODEL,
     bicycle: BicycleClaim | None = BICYCLE,
+    absent: str = "",
+    real_car: pd.DataFrame | None = None,
+    real_car_claims: Sequence[ClosedLoopClaim] = REAL_CAR_CLAIMS,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Table 8 (internal columns) for the paper's ``runs`` (every draw and seed; a table 1 or
     4 given as one frame is replicate 0's), and the closed-loop rows' intervals per draw and
-    pooled (figure 13: claim, comparison, scope, estimate, low, high, paper)."""
+    pooled (figure 13: claim, comparison, scope, estimate, low, high, paper). With no run, each
+    closed-loop claim is a ``not evaluated`` row giving ``absent`` (why there is none) as its
+    reason. ``real_car``: the ground-truth study's runs (every draw and seed), on which
+    ``real_car_claims`` are evaluated the same way (CAPE's own rows, setting "real car")."""
     complexity = {0: complexity} if isinstance(complexity, pd.DataFrame) else dict(complexity or {})
     openloop = {0: openloop} if isinstance(openloop, pd.DataFrame) else dict(openloop or {})
     context = context or Context(openloop=openloop)
     if openloop and not context.openloop:
         context = Context(context.ideal_lap_time, context.failed, openloop)
     runs = runs if "replicate" in runs else runs.assign(replicate=0)
+    if real_car is not None and "replicate" not in real_car:
+        real_car = real_car.assign(replicate=0)
     replicates = sorted(
         {int(r) for r in runs["replicate"].unique()} | set(complexity) | set(openloop)
     )
     ev = _Evaluation(replicates, context, settings or Settings(), [], [])
-    if not runs.empty:
-        for claim in claims:
+    for claim in claims:
+        if runs.empty:
+            why = absent or "the paper's study has no runs"
+            for pair in claim.pairs:
+                comparison = f"{pair.a.upper()}{claim.effect.joiner}{pair.b.upper()}"
+                _not_evaluated(ev, claim.name.format(cells=0), comparison, pair.paper_text, why)
+        else:
             _closed_loop(ev, runs, claim)
+    if real_car is not None:
+        for claim in real_car_claims:
+            if real_car.empty:
+                for pair in claim.pairs:
+                    comparison = f"{pair.a.upper()}{claim.effect.joiner}{pair.b.upper()}"
+                    why = "the ground-truth study has no runs in this target"
+                    name = claim.name.format(cells=0)
+                    _not_evaluated(ev, name, comparison, pair.paper_text, why, claim.setting)
+            else:
+                _closed_loop(ev, real_car, claim)
     if bicycle is not None:
         _bicycle(ev, bicycle, best_bicycle, labels)
     for claim in model_claims:
         _model(ev, claim, complexity if claim.table == "complexity" else openloop)
     table = pd.DataFrame(ev.rows)
     order = [
+        "setting",
         "claim",
         "comparison",
         "paper",
@@ -404,6 +440,7 @@ def evaluate_claims(
     for column in order:
         if column not in table:
             table[column] = math.nan if column in numeric or column.startswith("effect") else ""
+    table["setting"] = table["setting"].replace("", PAPER_SETTING).fillna(PAPER_SETTING)
     table = table[order]
     verdict_columns = [f"verdict rep{r}" for r in replicates]
     # a row about replicate 0 alone (the bicycle study's) has no verdict in the other draws (a
@@ -430,8 +467,11 @@ def presented(table: pd.DataFrame) -> pd.DataFrame:
     per-draw or draws-needed columns); with several, the class verdict over the draws beside
     each draw's verdict about its one network."""
     draws = draws_of(table)
+    if "setting" in table and not table["setting"].eq(REAL_CAR).any():
+        table = table.drop(columns=["setting"])  # the paper's rows alone: no column to tell
     if len(draws) <= 1:
         keep = ["claim", "comparison", "paper", "ours", "ci95_low", "ci95_high", "verdict", "why"]
+        keep = [c for c in ("setting", *keep) if c in table]
         return table[keep].rename(columns={"verdict": "verdict (this training draw)"})
     renamed = {f"verdict rep{r}": f"verdict rep{r} (this network)" for r in draws}
     renamed |= {

@@ -150,3 +150,18 @@ def failure_summary(runs: pd.DataFrame, labels: Mapping[str, str]) -> pd.DataFra
             }
         )
     return pd.DataFrame(rows)
+
+
+def plant_failures(runs: pd.DataFrame) -> pd.DataFrame:
+    """Per study and plant: runs, failed runs, and how many of those its plant's
+    (``plant_diverged``: a learned plant that left its training data's envelope, SPEC §5.3)
+    rather than the controllers'."""
+    failed = ~runs["success"].astype(bool)
+    reasons = runs["failure"] if "failure" in runs else pd.Series(None, index=runs.index)
+    plants = reasons.eq("plant_diverged")
+    frame = runs.assign(_failed=failed, _plant=plants)
+    table = frame.groupby(["study", "plant"], sort=False).agg(
+        runs=("_failed", "size"), failures=("_failed", "sum"), plant_diverged=("_plant", "sum")
+    )
+    table = table.reset_index().astype({"failures": int, "plant_diverged": int})
+    return table.rename(columns={"plant_diverged": "the plant's (plant diverged)"})

@@ -133,6 +133,13 @@ def _cause(
         if len(reference)
         else "; the truth study has no lap of this controller at η = 0 to compare with"
     )
+    diverged = int(lost["failure"].eq("plant_diverged").sum())
+    if diverged:
+        trainings.insert(
+            0,
+            f"{diverged} of them the plant's, not the controller's: the learned plant left "
+            "its training data's envelope (plant_diverged, SPEC §5.3)",
+        )
     if trainings:
         return f"{reasons}; " + "; ".join(trainings) + f"; {slid}"
     if len(reference) and (front > 2 * ref_front or rear > 2 * ref_rear):
