@@ -28,6 +28,22 @@ def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _build(work: Path, cfg: dict[str, Any], target: str) -> None:
+    """Write ``cfg`` as the scratch folder's config (the track mirror made absolute) and build
+    ``target`` there through the real `snakemake`."""
+    mirror = cfg["tracks"]["mirror"]
+    cfg["tracks"]["mirror"] = str((REPO_ROOT / mirror).resolve()) if mirror else None
+    (work / "config").mkdir()
+    (work / "config" / "config.yaml").write_text(yaml.safe_dump(cfg))
+    result = subprocess.run(
+        ["snakemake", "-s", str(REPO_ROOT / "Snakefile"), "--cores", "2", "-d", str(work), target],
+        capture_output=True,
+        text=True,
+        timeout=1500,
+    )
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+
+
 def _repo_status() -> str:
     if not (REPO_ROOT / ".git").exists():
         return ""
@@ -76,19 +92,7 @@ def test_a_model_and_a_controller_added_by_config_alone_run_through_the_study(
     extension = {**cfg["study"]["studies"]["extension"], "eta": ["0", "1"]}
     cfg["study"]["studies"] = {"extension": extension}  # only the new names' slice
     cfg["study"]["paper"] = None  # not the paper's grid: no scorecard
-    mirror = cfg["tracks"]["mirror"]
-    cfg["tracks"]["mirror"] = str((REPO_ROOT / mirror).resolve()) if mirror else None
-    (work / "config").mkdir()
-    (work / "config" / "config.yaml").write_text(yaml.safe_dump(cfg))
-
-    target = "results/notebooks/extension.html"
-    result = subprocess.run(
-        ["snakemake", "-s", str(REPO_ROOT / "Snakefile"), "--cores", "2", "-d", str(work), target],
-        capture_output=True,
-        text=True,
-        timeout=1200,
-    )
-    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    _build(work, cfg, "results/notebooks/extension.html")
 
     runs = pd.read_parquet(work / "results" / "study" / "runs.parquet")
     cells = set(zip(runs["plant"], runs["controller"], runs["eta"], strict=True))
@@ -156,3 +160,47 @@ def test_a_disturbance_source_added_by_config_alone_reaches_the_runs_and_table_3
     assert len(late) > 50
     np.testing.assert_array_equal(late["T_applied"].to_numpy()[2:], late["T_cmd"].to_numpy()[:-2])
     assert (late["T_applied"].to_numpy()[:2] == 0.0).all()
+
+
+@pytest.mark.slow
+def test_a_model_added_by_its_module_and_entry_takes_its_place_in_table_9(tmp_path: Path) -> None:
+    """The worked example of config/examples/ (EPM's network, DDM's physics), as a newcomer adds
+    a model: its module in a folder of theirs and the overlay's entry, nothing else. Through the
+    real `snakemake`, table 9 places it in both studies (learned plants; the real car, inside
+    the adaptive NMPC) against the reference model, with its effect, verdict, open-loop RMSE
+    and complexity; the reference is named as such."""
+    import pandas as pd
+
+    work = tmp_path / "work"
+    (work / "mine").mkdir(parents=True)
+    shutil.copy(EXAMPLES / "epm_network_ddm_physics.py", work / "mine" / "hybrid.py")
+    cfg = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
+    overlay = REPO_ROOT / "config" / "examples" / "epm_network_ddm_physics.yaml"
+    for path in (REPO_ROOT / "config" / "smoke.yaml", overlay):
+        cfg = _merge(cfg, yaml.safe_load(path.read_text()))
+    cfg["models"]["epmnet"]["module"] = "mine/hybrid.py"
+    cfg["models"]["epmnet"]["train"]["epochs"] = 2
+    one = {"controllers": ["anmpc"], "eta": ["0", "1"], "replicates": "all"}
+    cfg["study"]["studies"] = {  # the slice table 9 reads: both studies, the adaptive NMPC
+        "learned": {"plants": ["epm", "epmnet"], **one},
+        "truth": {"plants": ["truth"], "internal": ["epm", "epmnet"], **one},
+    }
+    target = "results/tables/table09_leaderboard.csv"
+    _build(work, cfg, target)
+    table = pd.read_csv(work / target)
+    assert set(table["study"]) == {
+        "learned plants (the paper's study)",
+        "real car (the ground-truth plant)",
+    }
+    for _, rows in table.groupby("study"):
+        rows = rows.set_index("model")
+        assert set(rows.index) == {"epm", "epmnet"}  # every model the study ran, the new one too
+        assert sorted(rows["rank"]) == [1, 2]
+        assert rows.loc["epm", "verdict vs reference"] == "the reference"
+        new = rows.loc["epmnet"]
+        assert new["verdict vs reference"] in ("lower", "higher", "inconclusive")
+        assert np.isfinite(new["effect vs reference"])
+        assert new["test_rmse_omega"] > 0 and new["params_M"] > 0
+    glance = (work / "results" / "RESULTS.md").read_text()
+    assert "## Table 9: where each model stands" in glance and "epmnet" in glance
+    assert (work / "results" / "figures" / "fig14_leaderboard.png").stat().st_size > 0

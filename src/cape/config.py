@@ -155,6 +155,12 @@ def _check_grid(config: dict[str, Any], source: str) -> None:
             f"`study.studies` ({', '.join(config['study']['studies'])}); name one of those, "
             "or set it to null for a grid without the paper's study (and no scorecard)"
         )
+    reference = config["study"].get("reference_model")
+    if reference is not None and reference not in config.get("models", {}):
+        raise CapeError(
+            f"{source}: field `study.reference_model` names {reference!r}, which the config "
+            f"does not define; use one of {', '.join(config.get('models', {}))}"
+        )
     real_car = config["study"].get("real_car")
     if real_car is not None:
         grid = config["study"]["studies"].get(real_car)

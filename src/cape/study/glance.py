@@ -88,10 +88,12 @@ def at_a_glance(
     runs: pd.DataFrame,
     health: pd.DataFrame | None = None,
     at_rest: tuple[pd.DataFrame, Sequence[str]] | None = None,
+    leaderboard: pd.DataFrame | None = None,
 ) -> str:
     """The page: the verdicts (over the draws, or for this one draw), what ran, the trainings
     that failed, the laps without disturbances with the cause of every miss (``at_rest``:
-    ``cape.study.undisturbed.undisturbed``), and every row of table 8 as presented."""
+    ``cape.study.undisturbed.undisturbed``), table 9 (``leaderboard``) and every row of table 8
+    as presented."""
     several = len(draws_of(table)) > 1
     scope = "over the training draws" if several else "for this training draw"
     lines = ["# CAPE results at a glance", "", *_intro(table, runs), ""]
@@ -164,6 +166,17 @@ def at_a_glance(
             "data (`plant_diverged`, SPEC §5.3); every failure still counts as a failed lap.",
             "",
             to_markdown(plant_failures(runs)),
+        ]
+    if leaderboard is not None and len(leaderboard) and "model" in leaderboard:
+        lines += [
+            "",
+            "## Table 9: where each model stands",
+            "",
+            "Every model of the grid, ranked by the primary metric; its effect against the "
+            "reference model on that metric, with its 95 % interval and verdict "
+            "(`table09_leaderboard.md`, figure 14).",
+            "",
+            to_markdown(leaderboard, number_formats(leaderboard)),
         ]
     every_row = presented(table)
     lines += ["", "## Every row", "", to_markdown(every_row, number_formats(every_row))]

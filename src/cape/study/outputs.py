@@ -77,9 +77,18 @@ WHOLE_STUDY_NOTEBOOKS: dict[str, NotebookOutputs] = {
             "fig13_claim_effects": (
                 "each closed-loop claim's effect with its 95 % interval, per training draw "
                 "(over its seeds) and over the draws, beside the paper's"
-            )
+            ),
+            "fig14_leaderboard": (
+                "each model's effect against the reference model with its 95 % interval, one "
+                "panel per study (table 9)"
+            ),
         },
-        tables=("table08_scorecard", "table04_replicates", "table01_replicates"),
+        tables=(
+            "table08_scorecard",
+            "table09_leaderboard",
+            "table04_replicates",
+            "table01_replicates",
+        ),
     ),
 }
 """Notebooks of the whole study (their outputs directly under results/figures, results/tables)."""

@@ -1,0 +1,54 @@
+"""Table 9, the leaderboard (cape.study.leaderboard): hand-made runs, hand-computed values."""
+
+from __future__ import annotations
+
+import pandas as pd
+import pytest
+from scipy import stats
+
+from cape.study.leaderboard import HIGHER, leaderboard, metric_of
+from cape.study.verdicts import INCONCLUSIVE
+
+NOISE = [0.2, -0.2, 0.1, -0.1, 0.0]  # each draw's seeds around its lap time (mean 0)
+LAPS = {  # the adaptive NMPC's lap time per draw
+    "epm": [7.0, 7.2, 6.9],
+    "ddm": [8.0, 8.3, 8.1],  # 1.0, 1.1, 1.2 s slower than EPM in each draw
+    "dpm": [6.5, 8.7, 7.7],  # −0.5, +1.5, +0.8: the draws disagree
+    "newcomer": [7.1, 7.3, 7.0],  # a model added by its config entry alone
+}
+
+
+def _runs() -> pd.DataFrame:
+    rows = [
+        {"model": model, "controller": "anmpc", "eta": 0.0, "seed": seed, "replicate": r,
+         "success": True, "lap_time_penalised": lap + noise}
+        for model, laps in LAPS.items()
+        for r, lap in enumerate(laps)
+        for seed, noise in enumerate(NOISE)
+    ]  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def test_every_model_is_ranked_with_its_interval_and_its_effect_against_the_reference() -> None:
+    models = ["dpm", "ddm", "epm", "newcomer", "untrained"]  # the last has no runs: no row
+    openloop = {r: pd.DataFrame({"model": models[:4], "test_rmse_omega": [4, 3, 2, r + 1.0]})
+                for r in range(3)}  # fmt: skip
+    table = leaderboard(_runs(), models, "epm", "anmpc_lap_time", openloop=openloop)
+    assert list(table["model"]) == ["epm", "newcomer", "dpm", "ddm"]  # by mean lap time
+    assert list(table["rank"]) == [1, 2, 3, 4]
+    rows = table.set_index("model")
+    label = metric_of("anmpc_lap_time").label
+    half = stats.t.ppf(0.975, 2) * 0.1 / 3**0.5  # DDM − EPM: effects 1.0, 1.1, 1.2 (sd 0.1)
+    ddm = rows.loc["ddm"]
+    assert ddm["effect vs reference"] == pytest.approx(1.1)
+    assert (ddm["ci95_low"], ddm["ci95_high"]) == (pytest.approx(1.1 - half),
+                                                   pytest.approx(1.1 + half))  # fmt: skip
+    assert ddm["verdict vs reference"] == HIGHER and ddm["draws needed"] == ""
+    epm_sd = pd.Series(LAPS["epm"]).std()
+    low = 7.0333333 - stats.t.ppf(0.975, 2) * epm_sd / 3**0.5
+    assert rows.loc["epm", label].startswith("7.03 [") and f"{low:.3g}" in rows.loc["epm", label]
+    assert rows.loc["epm", "verdict vs reference"] == "the reference"
+    dpm = rows.loc["dpm"]
+    assert dpm["verdict vs reference"] == INCONCLUSIVE and dpm["draws needed"] != ""
+    assert rows.loc["newcomer", "test_rmse_omega"] == pytest.approx(2.0)  # mean of 1, 2, 3
+    assert rows.loc["newcomer", "NMPC-family failures per seed"] == "0"
