@@ -84,10 +84,11 @@ def test_the_paper_study_must_be_a_study_of_the_grid(config) -> None:
     own = copy.deepcopy(config)  # a grid of one's own: no paper study, no scorecard
     own["study"]["paper"] = None
     own["study"]["studies"] = {"mine": {"plants": ["truth"], "controllers": ["pid"]}}
-    with pytest.raises(CapeError, match=r"`study.real_car` names 'truth'.*or set it to null"):
-        validate_config(own, "cfg.yaml")
-    own["study"]["real_car"] = None
-    assert validate_config(own, "cfg.yaml")["study"]["paper"] is None
+    assert validate_config(own, "cfg.yaml")["study"]["paper"] is None  # real_car: unread
+    car = copy.deepcopy(config)
+    car["study"]["real_car"] = "learned"  # not a ground-truth study
+    with pytest.raises(CapeError, match=r"`study.real_car` names 'learned'.*or set it to null"):
+        validate_config(car, "cfg.yaml")
     own["study"]["studies"]["bikes"] = {"kind": "bicycle", "plants": ["epm-fixed"],
                                         "controllers": ["pid"]}  # fmt: skip
     with pytest.raises(CapeError, match=r"`study.studies.bikes.kind` is bicycle"):

@@ -162,7 +162,7 @@ def _check_grid(config: dict[str, Any], source: str) -> None:
             f"does not define; use one of {', '.join(config.get('models', {}))}"
         )
     real_car = config["study"].get("real_car")
-    if real_car is not None:
+    if real_car is not None and paper is not None:  # no paper's study: no scorecard to read it
         grid = config["study"]["studies"].get(real_car)
         if grid is None or list(grid.get("plants", [])) != ["truth"]:
             raise CapeError(

@@ -174,7 +174,7 @@ rule notebook_scorecard:
     output:
         report("{scope}/tables/table08_scorecard.md", caption="../report/scorecard.rst", category="Claims"),
         multiext("{scope}/tables/table08_scorecard", ".csv", ".tex"),
-        *(f"{{scope}}/tables/{name}{ext}" for name in ("table04_replicates", "table01_replicates") for ext in TABLE_EXTS),
+        *(f"{{scope}}/tables/{name}{ext}" for name in WHOLE_STUDY_NOTEBOOKS["scorecard"].tables if name != "table08_scorecard" for ext in TABLE_EXTS),
         *reported_figures("scorecard", "{scope}/figures", "../report/scorecard.rst", "Claims"),
         figures("scorecard", "{scope}/figures", ".pdf"),
         report("{scope}/RESULTS.md", caption="../report/glance.rst", category="Claims"),
