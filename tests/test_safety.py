@@ -639,7 +639,7 @@ def _bad_config(tmp_path: Path, overlay: dict) -> Path:
         ),
         ({"study": {"studies": {"learned": {"plants": ["epm", "epm"]}}}}, ["non-unique"]),
         ({"study": {"seeds": 1000000}}, ["study.seeds", "maximum"]),
-        ({"study": {"seeds": 1000}}, ["868,000 runs", "study.max_runs"]),
+        ({"study": {"seeds": 1000}}, ["1,176,000 runs", "study.max_runs"]),
         (
             {"models": {"dpm": {"module": "no_such_module"}}},
             ["models.dpm.module", "no_such_module"],

@@ -251,7 +251,9 @@ def _closed_loop(ev: _Evaluation, runs: pd.DataFrame, claim: ClosedLoopClaim) ->
                 why = f"no finite {claim.metric} effect on common seeds"
             else:
                 whose = f" of {' or '.join(missing)}" if len(selected) else ""
-                why = f"the paper's study has no {claim.select.what}{whose}"
+                paper = claim.setting == PAPER_SETTING
+                study = "the paper's study" if paper else "the ground-truth study"
+                why = f"{study} has no {claim.select.what}{whose}"
             _not_evaluated(ev, name, comparison, pair.paper_text, why, claim.setting)
             continue
         verdicts, spans = _verdicts(ev, effects, pair)
