@@ -1,0 +1,95 @@
+"""What one more training draw costs in a finished replicated study (`snakemake --cores 2 all
+replicates`): the CPU of its trainings, solvers and every run that uses its networks (the
+learned study's, and the ground-truth study's with a learned internal model), split into
+training, a job's fixed part, the plant's Φ, the controller's step (solve, internal Φ and any
+rescue) and the loop around them.
+
+Training and solver CPU come from the rules' benchmark files (`cpu_time`); a run's phases from
+its own timing.json (`job_s`, wall seconds of a single-threaded job: its CPU time, near enough).
+What no file records (the interpreter before cape's first import, Snakemake's own work per job)
+is left out and said so.
+
+    python benchmarks/draw_cost.py [--results results] [--replicate 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+from collections import defaultdict
+from pathlib import Path
+
+from cape.study.grid import RunId
+
+
+def benchmark_cpu(folder: Path) -> dict[str, float]:
+    """``cpu_time`` of each benchmark file under ``folder`` (file stem → s)."""
+    out = {}
+    for path in sorted(folder.rglob("*.tsv")):
+        with path.open() as handle:
+            row = next(csv.DictReader(handle, delimiter="\t"))
+        value = row.get("cpu_time") or row.get("s")
+        out[str(path.relative_to(folder).with_suffix(""))] = float(value or 0.0)
+    return out
+
+
+def draw_runs(results: Path, replicate: int) -> list[dict]:
+    """The phases of every run of ``replicate`` computed with a trained network."""
+    rows = []
+    for path in sorted((results / "runs").glob(f"*/rep{replicate}/*/*/*/*/*/timing.json")):
+        run = RunId.parse(path)
+        metrics = json.loads((path.parent / "metrics.json").read_text())
+        job = json.loads(path.read_text()).get("job_s")
+        if not metrics.get("models") or job is None:
+            continue
+        rows.append({**job, "study": run.study, "law": run.controller,
+                     "rescues": int(metrics.get("rescues") or 0)})  # fmt: skip
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--results", type=Path, default=Path("results"))
+    parser.add_argument("--replicate", type=int, default=1, help="the draw to cost (not 0)")
+    parser.add_argument("--budget", type=float, default=2400.0, help="s of CPU a draw may cost")
+    args = parser.parse_args()
+    rep = f"rep{args.replicate}"
+    bench = args.results / "benchmarks"
+    training = {k: v for k, v in benchmark_cpu(bench / "train").items() if k.startswith(rep)}
+    solvers = {k: v for k, v in benchmark_cpu(bench / "solvers").items() if f"/{rep}/" in f"/{k}"}
+    runs = draw_runs(args.results, args.replicate)
+    if not runs:
+        raise SystemExit(f"no run of replicate {args.replicate} under {args.results / 'runs'}")
+    parts: dict[str, float] = defaultdict(float)
+    by_cell: dict[tuple[str, str], dict[str, float]] = defaultdict(lambda: defaultdict(float))
+    for r in runs:
+        fixed = r["startup"] + r["config"] + r["build"] + r["write"]
+        loop = r["lap"] - r["controller"] - r["plant"]
+        for name, value in (("fixed", fixed), ("plant Φ", r["plant"]),
+                            ("controller step", r["controller"]), ("loop", loop)):  # fmt: skip
+            parts[name] += value
+            by_cell[(r["study"], r["law"])][name] += value
+        by_cell[(r["study"], r["law"])]["jobs"] += 1
+        by_cell[(r["study"], r["law"])]["rescues"] += r["rescues"]
+    total = sum(training.values()) + sum(solvers.values()) + sum(parts.values())
+    print(f"replicate {args.replicate}: {len(runs)} runs with its networks")
+    print(f"  training  {sum(training.values()):8.0f} s  "
+          + ", ".join(f"{k.split('/')[-1]} {v:.0f}" for k, v in training.items()))  # fmt: skip
+    print(f"  solvers   {sum(solvers.values()):8.0f} s  ({len(solvers)} builds)")
+    for name, value in parts.items():
+        print(f"  {name:15} {value:8.0f} s")
+    verdict = "within" if total <= args.budget else "over"
+    print(
+        f"  total     {total:8.0f} s of CPU ({verdict} the {args.budget:.0f} s budget); not "
+        "counted: interpreter start-up before cape's imports, Snakemake's work per job"
+    )
+    print(f"\n{'study':8} {'controller':10} {'jobs':>5} {'fixed':>7} {'plant Φ':>8} "
+          f"{'step':>8} {'loop':>6} {'rescues':>8}")  # fmt: skip
+    for (study, controller), c in sorted(by_cell.items()):
+        print(f"{study:8} {controller:10} {c['jobs']:5.0f} {c['fixed']:7.0f} {c['plant Φ']:8.0f} "
+              f"{c['controller step']:8.0f} {c['loop']:6.0f} {c['rescues']:8.0f}")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
