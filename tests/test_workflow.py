@@ -243,14 +243,18 @@ def test_the_smoke_study_builds_every_table_figure_and_notebook(smoke_study: Pat
     expected = 3 * 5 * 2 + 3 * 2 * 2 + 3 * 3 * 1 * 1 + (1 + 2 * 2) * 2
     assert len(runs) == expected == 61 and runs["seed"].eq(0).all()
     assert runs["replicate"].eq(0).all()  # the default target's study: replicate 0
-    # the replicates' scope adds the paper's study for replicate 1 (3 plants × 5 × 2 η)
+    # the replicates' scope adds, for replicate 1, the paper's study (3 plants × 5 × 2 η) and the
+    # truth study (PID + 2 NMPCs × 2 internal models) × 2 η, of which only EPM inside the NMPCs
+    # (2 × 2 runs) is computed again: the runs without a learned model are read for both draws
     every = pd.read_parquet(work / "results/replicates/study/runs.parquet")
-    assert len(every) == expected + 30
+    assert len(every) == expected + 30 + 10
     learned = every.query("study == 'learned'")
     assert learned.groupby("replicate").size().to_dict() == {0: 30, 1: 30}
-    assert every.query("study != 'learned'")["replicate"].eq(0).all()
+    assert every.query("study == 'truth'").groupby("replicate").size().to_dict() == {0: 10, 1: 10}
+    assert every.query("study not in ('learned', 'truth')")["replicate"].eq(0).all()
     # the ablation's diagonal (internal = plant: 3 runs) is the learned study's, computed once
-    assert len(list((work / "results/runs").rglob("metrics.json"))) == expected - 3 + 30
+    computed = len(list((work / "results/runs").rglob("metrics.json")))
+    assert computed == expected - 3 + 30 + 4
     table8 = pd.read_csv(work / "results/replicates/tables/table08_scorecard.csv")
     per_draw = {"verdict rep0 (this network)", "verdict rep1 (this network)", "effect rep1"}
     assert per_draw | {"verdict (2 draws)", "verdict (draws that trained)", "draws needed"} <= set(
@@ -315,7 +319,7 @@ def test_every_smoke_notebook_shows_each_figure_it_saves(smoke_study: Path) -> N
         page = _Page((smoke_study / f"results/notebooks/{name}.html").read_text())
         assert shown == saved, name
         assert [_digest(p) for p in page.pngs] == saved, name
-    assert sum(len(figures) for _, figures in notebooks.values()) == 23  # 1 + 2 × 7 + 2 + 1 + 4 + 1
+    assert sum(len(figures) for _, figures in notebooks.values()) == 24  # 1 + 2 × 7 + 2 + 1 + 4 + 2
     # and the replicates' scorecard, from its own folder
     scope = smoke_study / "results" / "replicates"
     saved = [
