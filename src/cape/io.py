@@ -145,3 +145,17 @@ def write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
 def write_text(path: str | os.PathLike[str], text: str) -> None:
     """Write ``text`` (UTF-8) to ``path`` atomically."""
     write_bytes(path, text.encode("utf-8"))
+
+
+def read_csv(path: str | os.PathLike[str], missing: str, damaged: str) -> Any:
+    """``pandas.read_csv(path)``, or one ``CapeError`` naming the file: ``missing`` (its fix)
+    when it does not exist, ``damaged`` (what it is not, and the fix) when pandas cannot read
+    it, followed by pandas' reason."""
+    import pandas as pd
+
+    try:
+        return pd.read_csv(path)
+    except FileNotFoundError:
+        raise CapeError(f"{path}: missing; {missing}") from None
+    except (pd.errors.EmptyDataError, pd.errors.ParserError, UnicodeDecodeError) as exc:
+        raise CapeError(f"{path}: {damaged.format(reason=exc)}") from None

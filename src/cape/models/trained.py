@@ -15,6 +15,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from cape.errors import CapeError
+from cape.io import read_csv
 from cape.models.physics import ModelPhysics
 from cape.models.registry import model_class
 
@@ -91,12 +92,7 @@ def read_training(folder: str | Path) -> tuple[Any, dict[str, Any]]:
     meta = read_meta(folder)
     path = folder / "loss.csv"
     fix = f"delete the model folder and train it again (`snakemake --cores 2 {folder}/model.pt`)"
-    try:
-        losses = pd.read_csv(path)
-    except FileNotFoundError:
-        raise CapeError(f"{path}: missing; {fix}") from None
-    except (pd.errors.EmptyDataError, pd.errors.ParserError, UnicodeDecodeError) as exc:
-        raise CapeError(f"{path}: not a loss curve ({exc}); {fix}") from None
+    losses = read_csv(path, fix, "not a loss curve ({reason}); " + fix.replace("{", "{{"))
     missing = [c for c in LOSS_COLUMNS if c not in losses]
     if missing or losses.empty:
         what = f"lacks the column(s) {', '.join(missing)}" if missing else "has no epoch"

@@ -10,6 +10,7 @@ from pathlib import Path
 import pandas as pd
 
 from cape.errors import CapeError
+from cape.io import read_csv
 
 
 def read_replicate_tables(
@@ -26,12 +27,11 @@ def read_replicate_tables(
         match = re.fullmatch(r"rep([0-9]+)", Path(item).parent.name)
         if match is None:
             raise CapeError(f"{item}: not a replicate's table (…/rep<r>/<table>.csv)")
-        try:
-            table = pd.read_csv(item)
-        except FileNotFoundError:
-            raise CapeError(f"{item}: missing; build it (snakemake --cores 2 {item})") from None
-        except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-            raise CapeError(f"{item}: unreadable ({exc}); delete it and rebuild it") from None
+        table = read_csv(
+            item,
+            f"build it (snakemake --cores 2 {item})",
+            "unreadable ({reason}); delete it and rebuild it",
+        )
         replicate = int(match.group(1))
         if model_root is not None:
             check_table_models(table, item, replicate, Path(model_root))
