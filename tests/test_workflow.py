@@ -102,6 +102,40 @@ def test_dry_run_plans_every_target() -> None:
         assert rule in out
 
 
+def _planned_commands(*configfiles: str) -> dict[str, str]:
+    """Each planned job's output → its shell command (which carries its --config-json), from a
+    forced dry run of a few runs and their solvers and networks."""
+    runs = [
+        "results/runs/learned/rep0/ddm/ddm/anmpc/eta1/seed0/metrics.json",
+        "results/runs/truth/rep0/truth/truth/nmpc/eta1/seed0/metrics.json",
+        "results/runs/truth/rep0/truth/epm/rnmpc/eta1/seed0/metrics.json",
+    ]
+    files = [str(REPO_ROOT / f) for f in configfiles]
+    result = _snakemake("-n", "-p", "--forceall", "--cores", "2", *runs, "--configfile", *files)
+    assert result.returncode == 0, result.stdout + result.stderr
+    commands, output = {}, None
+    for line in result.stdout.splitlines():
+        if line.strip().startswith("output:"):
+            output = line.split("output:", 1)[1].split(",")[0].strip()
+        elif line.startswith("Shell command: cape ") and output is not None:
+            commands[output] = line.removeprefix("Shell command: ")
+    return commands
+
+
+def test_adding_a_model_reruns_no_other_models_jobs() -> None:
+    """A model added by its config entry changes no other run's, solver's or network's command
+    (their --config-json holds only the models they read), so Snakemake reruns none of them."""
+    before = _planned_commands("config/config.yaml")
+    after = _planned_commands("config/config.yaml", "config/examples/epm_network_ddm_physics.yaml")
+    assert any("cape rollout" in c for c in before.values())
+    assert any("cape build-solver" in c for c in before.values())
+    assert any("cape export-network" in c for c in before.values())
+    assert set(after) >= set(before)
+    changed = [out for out, command in before.items() if after[out] != command]
+    assert changed == []
+    assert "epmnet" not in " ".join(before.values())
+
+
 def test_data_targets_build_and_match_fingerprints(tmp_path: Path) -> None:
     import numpy as np
 

@@ -8,6 +8,7 @@ import sys
 from snakemake.io import report as in_report  # `report(` opening a line is Snakemake's directive
 
 from cape.bytecode import precompile_package
+from cape.closedloop.model_names import models_read
 from cape.config import validate_config
 from cape.controllers import controller_class
 from cape.closedloop.disturbances import validate_sources
@@ -206,12 +207,30 @@ def solver_inputs(wildcards):
     return {"raceline": raceline_path(), **internal}
 
 
-def rollout_config_json(controller):
+def rollout_config_json(controller, *names, solver=False):
     """What a run reads: the track data, the reference, the disturbances, the run settings,
-    the models and this controller's gains."""
-    sections = {k: config[k] for k in ("tracks", "data", "reference", "disturbances", "rollout", "models")}
-    sections["controllers"] = {controller: config["controllers"][controller]}
+    this controller's gains (not its label) and the entries of the models its plant and internal model ``names``
+    read (not their label or colour), so that adding a model or recolouring one reruns nothing
+    else. A solver (``solver=True``) is not given what only judges a run (RUN_ONLY_KEYS)."""
+    sections = {k: config[k] for k in ("tracks", "data", "reference", "disturbances", "rollout")}
+    if solver:
+        sections["rollout"] = {k: v for k, v in config["rollout"].items() if k not in RUN_ONLY_KEYS}
+    sections["models"] = {
+        name: {k: v for k, v in entry.items() if k not in PRESENTATION_KEYS}
+        for name, entry in models_read(config["models"], *names).items()
+    }
+    gains = {k: v for k, v in config["controllers"][controller].items() if k not in PRESENTATION_KEYS}
+    sections["controllers"] = {controller: gains}
     return json.dumps(sections, sort_keys=True)
+
+
+# rollout settings that judge or bound a run, which no controller's NLP reads
+RUN_ONLY_KEYS = ("plant_envelope", "failure_window")
+
+
+def export_config_json():
+    """What exporting a network reads: how its Φ is compiled."""
+    return json.dumps({"rollout": {"compile": config["rollout"]["compile"]}}, sort_keys=True)
 
 
 def grid_runs():

@@ -61,7 +61,7 @@ rule export_network:
     localrule: True
     params:
         folder=lambda wildcards, input: os.path.dirname(input.weights),
-        cfg=lambda wildcards: config_json("rollout"),
+        cfg=lambda wildcards: export_config_json(),
     conda:
         CAPE_ENV
     log:

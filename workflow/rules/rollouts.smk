@@ -7,7 +7,9 @@ rule solver:
     output:
         "results/solvers/rep{replicate}/{controller}/{internal}.json",
     params:
-        cfg=lambda wildcards: rollout_config_json(wildcards.controller),
+        cfg=lambda wildcards: rollout_config_json(
+            wildcards.controller, wildcards.internal, solver=True
+        ),
         models=lambda wildcards, input: model_folder_args(input),
     conda:
         CAPE_ENV
@@ -28,7 +30,9 @@ rule rollout:
         timing=f"{RUN_FOLDER}/timing.json",
         series=f"{RUN_FOLDER}/timeseries.parquet",
     params:
-        cfg=lambda wildcards: rollout_config_json(wildcards.controller),
+        cfg=lambda wildcards: rollout_config_json(
+            wildcards.controller, wildcards.plant, wildcards.internal
+        ),
         out=lambda wildcards, output: os.path.dirname(output.metrics),
         models=lambda wildcards, input: model_folder_args(input),
         data=lambda wildcards, input: training_data_arg(input),

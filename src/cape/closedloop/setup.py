@@ -14,6 +14,7 @@ import numpy as np
 
 from cape.closedloop.disturbances import DisturbancePipeline
 from cape.closedloop.envelope import Envelope
+from cape.closedloop.model_names import truth_structure
 from cape.closedloop.plants import FixedParameterPlant, LearnedPlant, Plant, TruthPlant
 from cape.closedloop.rollout import RolloutResult, run_lap
 from cape.config import section
@@ -128,7 +129,7 @@ def build_internal(
     ts = float(section(config, "data")["ts"])
     kind, model_name = parse_plant(name, models, "--internal")
     if kind == "truth":
-        structure = "ddm" if "ddm" in models else next(iter(models))
+        structure = truth_structure(models)
         physics = model_class(structure, models[structure])(models[structure], ts)
         truth = GROUND_TRUTH.as_dict()
         return fixed_internal(
