@@ -200,11 +200,41 @@ def _rate_limited(u: np.ndarray, u_prev: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("name", ["anmpc", "rnmpc"])
 def test_the_adaptive_and_robust_nmpc_lap_with_the_true_internal_model(cfg, name) -> None:
     run = _run(cfg, controller=name)
-    m = run().metrics
+    result = run()
+    m = result.metrics
     assert m["success"], m
     assert 6.8 < m["lap_time"] < 7.6
     assert m["mean_abs_ey"] < 0.02
     assert m["fallbacks"] <= 0.01 * m["steps"]
+    # the step's parts are timed (timing.json) and lie inside the step's own time
+    parts = result.controller_s
+    own = {"anmpc": "adaptation", "rnmpc": "estimate"}[name]
+    assert {"estimate", "internal_phi", "parameters", "solve", own} <= set(parts)
+    assert all(v > 0 for k, v in parts.items() if k != "estimate" or name == "rnmpc")
+    assert sum(parts.values()) <= result.solve_ms.sum() / 1e3
+
+
+def test_the_rescue_counts_the_solves_it_saved(cfg) -> None:
+    """Every tenth SQP solve is made to fail: IPOPT, from the SQP's last iterate, solves the
+    same problem; each rescue is counted as tried and, when IPOPT converges, as succeeded."""
+    run = _run(cfg)
+    backend = run.controller.backend
+    real = backend.solve
+    calls = {"n": 0}
+
+    def failing(*args, **kw):
+        calls["n"] += 1
+        plan, ok = real(*args, **kw)
+        return (plan, ok and calls["n"] % 10 != 0)
+
+    backend.solve = failing
+    result = run()
+    assert result.metrics["success"], result.metrics
+    tried = result.metrics["rescues"]
+    assert tried >= calls["n"] // 10 > 20
+    assert 0.9 * tried <= result.rescues_succeeded <= tried  # the true model's problems solve
+    assert result.metrics["fallbacks"] == tried - result.rescues_succeeded
+    assert result.controller_s["rescue"] > 0
 
 
 def test_the_adaptive_law_moves_the_drivetrain_toward_the_truth(cfg) -> None:

@@ -195,6 +195,13 @@ def cmd_rollout(args: argparse.Namespace) -> None:
             "steps": int(metrics["steps"]),
             "write": round(time.perf_counter() - lapped, 4),
         }
+        # the controller's steps by part (an NMPC's: benchmarks/draw_cost.py), and how many of
+        # the SQP's failures its IPOPT rescue solved
+        timing["controller_s"] = {k: round(v, 4) for k, v in sorted(result.controller_s.items())}
+        timing["rescues"] = {
+            "tried": int(metrics.get("rescues") or 0),
+            "succeeded": result.rescues_succeeded,
+        }
         write_timing(folder, timing, series_sha256)
     status = "lap" if metrics["success"] else f"failed ({metrics['failure']})"
     run_name = f"{args.plant}/{args.controller} η={args.eta} seed={args.seed}"

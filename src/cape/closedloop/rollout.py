@@ -40,6 +40,11 @@ class RolloutResult:
     plant_s: float = 0.0
     """Wall seconds spent in the plant's steps (the lap's other parts: the controller's solve
     times, and the loop around both)."""
+    controller_s: dict[str, float] = field(default_factory=dict)
+    """Wall seconds of the named parts of the controller's steps (``Controller.phase_s``: an
+    NMPC's estimate, internal Φ, parameters, solve, rescue, adaptation)."""
+    rescues_succeeded: int = 0
+    """Steps whose IPOPT rescue converged where the SQP had not (``metrics["rescues"]`` tried)."""
 
 
 def initial_state(line: ReferenceLine, vx0: float) -> np.ndarray:
@@ -156,7 +161,14 @@ def run_lap(
     metrics.update(
         failure_location(failure, car.total, line.length, last_pose, fallback_steps, window)
     )
-    return RolloutResult(metrics, series, np.asarray(solve_ms), plant_s)
+    return RolloutResult(
+        metrics,
+        series,
+        np.asarray(solve_ms),
+        plant_s,
+        dict(getattr(controller, "phase_s", {})),
+        int(getattr(controller, "rescues_succeeded", 0)),
+    )
 
 
 def failure_location(

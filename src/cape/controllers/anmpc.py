@@ -16,6 +16,7 @@ steps costs about 0.1 s of every job.
 from __future__ import annotations
 
 import sys
+import time
 from collections import deque
 from typing import Any, ClassVar
 
@@ -123,7 +124,9 @@ class AdaptiveNMPC(NominalNMPC):
             self._samples.append((x, u, phi, np.asarray(z[3:6], dtype=float)))
             self._since_update += 1
             if self._since_update >= self.every and len(self._samples) == self.every:
+                start = time.perf_counter()
                 self._update()
+                self.clock("adaptation", start)
         x_now = np.concatenate([z, self.u_prev])
         u, info = super().step(z, proj, ref)
         self._pending = (x_now, u.copy(), np.asarray(self.phi_now, dtype=float))

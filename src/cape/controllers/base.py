@@ -8,6 +8,7 @@ needs of an internal model (PID and RISE need none).
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -160,9 +161,17 @@ class Controller:
         # (SPEC §7.1); a controller is told this, never η or a draw
         self.actuator_delay = float(actuator_delay)
         self.u_prev = np.zeros(2)
+        self.phase_s: dict[str, float] = {}
 
     def reset(self, z0: np.ndarray) -> None:
         self.u_prev = np.zeros(2)
+        self.phase_s = {}  # seconds spent in each named part of the steps (timing.json)
+
+    def clock(self, phase: str, since: float) -> float:
+        """Add the time since ``since`` (``time.perf_counter()``) to ``phase``; return now."""
+        now = time.perf_counter()
+        self.phase_s[phase] = self.phase_s.get(phase, 0.0) + (now - since)
+        return now
 
     def previewed(self, z: np.ndarray, proj: Projection, t_p: float) -> tuple[Any, ...]:
         """The measured pose predicted ``t_p`` ahead (``preview_pose``) and its projection on

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 from typing import Any, ClassVar
 
 import casadi as ca
@@ -345,6 +346,7 @@ class NominalNMPC(Controller):
         self._last: tuple[np.ndarray, np.ndarray] | None = None
         self.fallbacks = 0
         self.rescues = 0
+        self.rescues_succeeded = 0  # rescues whose IPOPT solve converged where the SQP had not
         self.dhat = np.zeros(3)
         self._theta_one = np.ones(3)
         self.phi_now: np.ndarray | None = None
@@ -373,7 +375,9 @@ class NominalNMPC(Controller):
         When the condensed SQP does not converge and a rescue solver is configured, IPOPT solves
         the same problem from the SQP's last iterate (its states rolled out), and its solution
         becomes the SQP's next warm start."""
+        start = time.perf_counter()
         plan, ok = self.backend.solve(x0, params, throttle)
+        start = self.clock("solve", start)
         if ok or self.rescue_with is None:
             return plan, ok
         self.rescues += 1
@@ -386,6 +390,8 @@ class NominalNMPC(Controller):
         plan, ok = rescue.solve(x0, params, throttle, guess=guess)
         if ok:
             plan = self.backend.adopt(plan)
+            self.rescues_succeeded += 1
+        self.clock("rescue", start)
         return plan, ok
 
     def throttle_bounds(self, z: np.ndarray, ref: ReferencePoints) -> tuple[float, float]:
@@ -399,14 +405,19 @@ class NominalNMPC(Controller):
     def step(
         self, z: np.ndarray, proj: Projection, ref: ReferencePoints
     ) -> tuple[np.ndarray, dict[str, Any]]:
+        start = time.perf_counter()
         z = self.estimate(z)
+        start = self.clock("estimate", start)
         if self._last is not None:
             self.internal.observe(*self._last)
         phi = self.internal.phi()
         self.phi_now = phi
+        start = self.clock("internal_phi", start)
         x0 = np.concatenate([z, self.u_prev])
         rescues = self.rescues
-        plan, ok = self.solve(x0, self.parameters(ref, phi), self.throttle_bounds(z, ref))
+        params, throttle = self.parameters(ref, phi), self.throttle_bounds(z, ref)
+        self.clock("parameters", start)
+        plan, ok = self.solve(x0, params, throttle)
         info = {
             "fallback": not ok,
             "rescued": self.rescues > rescues,
