@@ -2,7 +2,8 @@
 replicates`): the CPU of its trainings, solvers and every run that uses its networks (the
 learned study's, and the ground-truth study's with a learned internal model), split into
 training, a job's fixed part, the plant's Φ, the controller's step (solve, internal Φ and any
-rescue) and the loop around them.
+rescue) and the loop around them; then an NMPC step of a study job by part, per controller and
+internal model, and the IPOPT rescue's success rate and cost.
 
 Training and solver CPU come from the rules' benchmark files (`cpu_time`); a run's phases from
 its own timing.json (`job_s`, wall seconds of a single-threaded job: its CPU time, near enough).
@@ -40,12 +41,68 @@ def draw_runs(results: Path, replicate: int) -> list[dict]:
     for path in sorted((results / "runs").glob(f"*/rep{replicate}/*/*/*/*/*/timing.json")):
         run = RunId.parse(path)
         metrics = json.loads((path.parent / "metrics.json").read_text())
-        job = json.loads(path.read_text()).get("job_s")
+        timing = json.loads(path.read_text())
+        job = timing.get("job_s")
         if not metrics.get("models") or job is None:
             continue
+        rescues = timing.get("rescues") or {}
         rows.append({**job, "study": run.study, "law": run.controller,
-                     "rescues": int(metrics.get("rescues") or 0)})  # fmt: skip
+                     "internal": run.internal, "eta": float(run.eta),
+                     "parts": timing.get("controller_s") or {},
+                     "rescues": int(metrics.get("rescues") or 0),
+                     "rescued": rescues.get("succeeded")})  # fmt: skip
     return rows
+
+
+STEP_PARTS = ("estimate", "internal_phi", "parameters", "solve", "rescue", "adaptation")
+
+
+def step_breakdown(runs: list[dict]) -> None:
+    """An NMPC step of a study job, per controller and internal model: ms per step of each
+    part the controller clocks (timing.json controller_s), the rest of its step, the plant's Φ."""
+    cells: dict[tuple[str, str], dict[str, float]] = defaultdict(lambda: defaultdict(float))
+    for r in runs:
+        if not r["parts"]:
+            continue
+        cell = cells[(r["law"], r["internal"])]
+        for name in STEP_PARTS:
+            cell[name] += r["parts"].get(name, 0.0)
+        cell["other"] += r["controller"] - sum(r["parts"].values())
+        cell["plant Φ"] += r["plant"]
+        cell["steps"] += r["steps"]
+    if not cells:
+        print("\n(no timing.json with controller_s: runs computed before the step was clocked)")
+        return
+    names = (*STEP_PARTS, "other", "plant Φ")
+    print("\nan NMPC step inside a study job, ms per step (timing.json controller_s)")
+    print(f"{'controller':10} {'internal':9} {'steps':>7} " + " ".join(f"{n:>12}" for n in names)
+          + f" {'step':>7}")  # fmt: skip
+    for (law, internal), c in sorted(cells.items()):
+        per = {n: 1e3 * c[n] / c["steps"] for n in names}
+        step = sum(per[n] for n in names if n != "plant Φ")
+        print(f"{law:10} {internal:9} {c['steps']:7.0f} "
+              + " ".join(f"{per[n]:12.3f}" for n in names) + f" {step:7.3f}")  # fmt: skip
+
+
+def rescue_table(runs: list[dict]) -> None:
+    """How often the IPOPT rescue solved a problem the SQP had not, and what it cost, per
+    internal model and η band."""
+    cells: dict[tuple[str, str], dict[str, float]] = defaultdict(lambda: defaultdict(float))
+    for r in runs:
+        if r["rescued"] is None or not r["rescues"]:
+            continue
+        band = "η ≤ 1.5" if r["eta"] <= 1.5 else ("η 2–3.5" if r["eta"] <= 3.5 else "η ≥ 4")
+        for key in ((r["internal"], band), (r["internal"], "all")):
+            cells[key]["tried"] += r["rescues"]
+            cells[key]["succeeded"] += r["rescued"]
+            cells[key]["s"] += r["parts"].get("rescue", 0.0)
+    if not cells:
+        return
+    print("\nIPOPT rescues: tried, succeeded (the SQP had failed), mean ms per rescue")
+    for (internal, band), c in sorted(cells.items()):
+        rate = c["succeeded"] / c["tried"]
+        print(f"  {internal:9} {band:9} {c['tried']:6.0f} {c['succeeded']:6.0f} ({rate:6.1%})"
+              f" {1e3 * c['s'] / c['tried']:7.1f} ms")  # fmt: skip
 
 
 def main() -> None:
@@ -89,6 +146,8 @@ def main() -> None:
     for (study, controller), c in sorted(by_cell.items()):
         print(f"{study:8} {controller:10} {c['jobs']:5.0f} {c['fixed']:7.0f} {c['plant Φ']:8.0f} "
               f"{c['controller step']:8.0f} {c['loop']:6.0f} {c['rescues']:8.0f}")  # fmt: skip
+    step_breakdown(runs)
+    rescue_table(runs)
 
 
 if __name__ == "__main__":
