@@ -10,7 +10,7 @@ its own timing.json (`job_s`, wall seconds of a single-threaded job: its CPU tim
 What no file records (the interpreter before cape's first import, Snakemake's own work per job)
 is left out and said so.
 
-    python benchmarks/draw_cost.py [--results results] [--replicate 1]
+    python benchmarks/draw_cost.py [--results results] [--replicate 1] [--models dpm ddm epm]
 """
 
 from __future__ import annotations
@@ -35,11 +35,15 @@ def benchmark_cpu(folder: Path) -> dict[str, float]:
     return out
 
 
-def draw_runs(results: Path, replicate: int) -> list[dict]:
-    """The phases of every run of ``replicate`` computed with a trained network."""
+def draw_runs(results: Path, replicate: int, models: set[str] | None = None) -> list[dict]:
+    """The phases of every run of ``replicate`` computed with a trained network (of
+    ``models`` only, when given: a run whose plant or internal model is another is left out)."""
     rows = []
     for path in sorted((results / "runs").glob(f"*/rep{replicate}/*/*/*/*/*/timing.json")):
         run = RunId.parse(path)
+        names = {n.removesuffix("-fixed") for n in (run.plant, run.internal)} - {"truth"}
+        if models is not None and not names <= models:
+            continue
         metrics = json.loads((path.parent / "metrics.json").read_text())
         timing = json.loads(path.read_text())
         job = timing.get("job_s")
@@ -110,12 +114,20 @@ def main() -> None:
     parser.add_argument("--results", type=Path, default=Path("results"))
     parser.add_argument("--replicate", type=int, default=1, help="the draw to cost (not 0)")
     parser.add_argument("--budget", type=float, default=2400.0, help="s of CPU a draw may cost")
+    parser.add_argument("--models", nargs="+", help="these models' draw only (default: all)")
     args = parser.parse_args()
     rep = f"rep{args.replicate}"
     bench = args.results / "benchmarks"
-    training = {k: v for k, v in benchmark_cpu(bench / "train").items() if k.startswith(rep)}
-    solvers = {k: v for k, v in benchmark_cpu(bench / "solvers").items() if f"/{rep}/" in f"/{k}"}
-    runs = draw_runs(args.results, args.replicate)
+    models = set(args.models) if args.models else None
+
+    def kept(key: str) -> bool:
+        return models is None or key.split("/")[-1].removesuffix("-fixed") in models
+
+    training = {k: v for k, v in benchmark_cpu(bench / "train").items()
+                if k.startswith(rep) and kept(k)}  # fmt: skip
+    solvers = {k: v for k, v in benchmark_cpu(bench / "solvers").items()
+               if f"/{rep}/" in f"/{k}" and kept(k)}  # fmt: skip
+    runs = draw_runs(args.results, args.replicate, models)
     if not runs:
         raise SystemExit(f"no run of replicate {args.replicate} under {args.results / 'runs'}")
     parts: dict[str, float] = defaultdict(float)

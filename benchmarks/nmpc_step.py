@@ -93,12 +93,12 @@ def rebuild_every_step(controller: Any, problems: list[Problem], opts: dict) -> 
     times = np.empty(len(problems))
     for i, (x0, params, throttle) in enumerate(problems):
         start = time.perf_counter()
-        built = controller.nlp()
-        solver = ca.nlpsol("nmpc", "ipopt", built["problem"], opts)
+        solver = ca.nlpsol("nmpc", "ipopt", controller.nlp(), opts)
+        lbg, ubg = controller.nlp_bounds()
         backend = controller.rescue  # the multiple-shooting NLP's bounds and cold start
         cold = backend.cold_start(x0, params[controller.layout["u_prev"]])
         _, lbx, ubx = backend._prepare(cold, x0, throttle, True)
-        solver(x0=cold, p=params, lbx=lbx, ubx=ubx, lbg=built["lbg"], ubg=built["ubg"])
+        solver(x0=cold, p=params, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
         times[i] = time.perf_counter() - start
     return times * 1e3
 

@@ -343,6 +343,51 @@ def test_the_compiled_solver_is_built_once_and_reused(cfg, solver_cache: Path) -
     assert [p.stat().st_mtime_ns for p in libraries] == stamps
 
 
+def test_a_cached_rescue_loads_without_its_expressions_and_solves_the_same(cfg) -> None:
+    """Once compiled, the rescue's NLP library is found by the problem's fingerprint: a later
+    run loads it without building the NLP's expressions, and IPOPT from the library solves a
+    problem as IPOPT on the expressions does."""
+    first = _run(cfg).controller
+    assert first.rescue is not None and first.rescue.library.name.startswith("ipopt_nlp_")
+    second = _run(cfg).controller
+
+    def not_built() -> None:
+        raise AssertionError("the NLP's expressions were built although its library is cached")
+
+    second.nlp = not_built
+    rescue = second.rescue
+    assert rescue.library == first.rescue.library
+    run = _run(cfg)
+    plain = copy.deepcopy(cfg)
+    plain["controllers"]["nmpc"]["compile"]["enabled"] = False
+    reference = _run(plain).controller.rescue
+    problems = []
+    real = run.controller.backend.solve
+
+    def record(x0, params, throttle):
+        if len(problems) < 40:
+            problems.append((x0.copy(), params.copy(), throttle))
+        return real(x0, params, throttle)
+
+    run.controller.backend.solve = record
+    run()
+    for x0, params, throttle in problems[::10]:
+        for solver in (rescue, reference):
+            solver.reset()
+        a, ok_a = rescue.solve(x0, params, throttle)
+        b, ok_b = reference.solve(x0, params, throttle)
+        assert ok_a and ok_b
+        np.testing.assert_allclose(a, b, atol=1e-6)
+
+
+def test_an_option_ipopt_does_not_know_names_the_config_key(cfg) -> None:
+    from cape.errors import CapeError
+
+    cfg["controllers"]["nmpc"]["ipopt"]["options"] = {"mu_inti": 1e-4}
+    with pytest.raises(CapeError, match=r"controllers\.nmpc\.ipopt\.options.*mu_inti"):
+        _run(cfg)
+
+
 def test_a_missing_nmpc_setting_names_the_config_key(cfg) -> None:
     from cape.errors import CapeError
 

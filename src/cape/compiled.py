@@ -33,16 +33,31 @@ _warned = False
 def make_nlpsol(
     name: str,
     plugin: str,
-    problem: dict[str, Any],
+    problem: Callable[[], dict[str, Any]],
     opts: dict[str, Any],
     compile_settings: dict[str, Any] | None,
+    fingerprint: str | None = None,
 ) -> tuple[ca.Function, Path | None]:
-    """``ca.nlpsol`` on ``problem``, and the compiled library it runs (None: uncompiled). With
-    ``compile_settings = {enabled, cache, compiler, flags}`` its functions are loaded from a
-    cached compiled library."""
-    solver = ca.nlpsol(name, plugin, problem, opts)
-    if not compile_settings or not compile_settings.get("enabled", False):
+    """``ca.nlpsol`` on ``problem()`` (its expressions), and the compiled library it runs
+    (None: uncompiled). With ``compile_settings = {enabled, cache, compiler, flags}`` its
+    functions are loaded from a cached compiled library: keyed by ``fingerprint`` when given (a
+    digest of everything the problem depends on; a cached one loads without calling
+    ``problem``), else by the hash of the generated code."""
+    enabled = bool(compile_settings and compile_settings.get("enabled", False))
+    if enabled and fingerprint is not None:
+        assert compile_settings is not None
+        library = cached_library(
+            fingerprint,
+            compile_settings,
+            lambda tmp: _generate(ca.nlpsol(name, plugin, problem(), opts), tmp),
+            prefix=f"{plugin}_nlp",
+        )
+        if library is not None:
+            return ca.nlpsol(name, plugin, str(library), opts), library
+    solver = ca.nlpsol(name, plugin, problem(), opts)
+    if not enabled:
         return solver, None
+    assert compile_settings is not None
     compiler = str(compile_settings.get("compiler", "gcc"))
     if shutil.which(compiler) is None:
         _warn_once(f"compiler {compiler!r} not found; NLP functions run uncompiled (slower)")

@@ -114,6 +114,9 @@ def validate_settings(cls: type, name: str, settings: Any, source: str = "config
             f"({cls.__module__}) reads exactly the keys of its settings_schema "
             "(config/config.yaml shows every one)."
         )
+    check = getattr(cls, "check_settings", None)
+    if check is not None:  # what a schema cannot say (e.g. a solver's own option names)
+        check(name, settings, source)
 
 
 def require(settings: dict[str, Any], keys: tuple[str, ...], where: str) -> None:

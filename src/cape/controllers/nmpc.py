@@ -29,10 +29,16 @@ import casadi as ca
 import numpy as np
 
 from cape.compiled import source_digest
+from cape.controllers import shooting
 from cape.controllers.base import GAINS, Controller, PIDLoop, require
 from cape.controllers.internal import N_STATE
 from cape.controllers.registry import register_controller
-from cape.controllers.shooting import MultipleShootingNLP, ipopt_options, sqpmethod_options
+from cape.controllers.shooting import (
+    MultipleShootingNLP,
+    check_ipopt_options,
+    ipopt_options,
+    sqpmethod_options,
+)
 from cape.controllers.sqp import CondensedSQP
 from cape.errors import CapeError
 from cape.tracks.geometry import Projection
@@ -82,7 +88,14 @@ NMPC_SCHEMA: dict[str, Any] = {
             "type": "object",
             "required": ["max_iter"],
             "additionalProperties": False,
-            "properties": {"max_iter": {"type": "integer", "minimum": 1}, "tol": _POSITIVE},
+            "properties": {
+                "max_iter": {"type": "integer", "minimum": 1},
+                "tol": _POSITIVE,
+                "options": {  # IPOPT's own options by name, e.g. mu_init
+                    "type": "object",
+                    "additionalProperties": {"type": ["number", "string"]},
+                },
+            },
         },
         "sqpmethod": {
             "type": "object",
@@ -114,6 +127,13 @@ NMPC_SCHEMA: dict[str, Any] = {
 class NominalNMPC(Controller):
     needs_internal_model = True
     settings_schema: ClassVar[dict[str, Any] | None] = NMPC_SCHEMA
+
+    @classmethod
+    def check_settings(cls, name: str, settings: dict[str, Any], source: str = "config") -> None:
+        """IPOPT knows its own option names and values: ask it, on a one-variable problem."""
+        options = settings.get("ipopt", {}).get("options")
+        if options:
+            check_ipopt_options(options, f"{source}: `controllers.{name}.ipopt.options`")
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -220,35 +240,30 @@ class NominalNMPC(Controller):
         return self.internal.step(x, u, p[layout["phi"]], p[layout["dhat"]], p[layout["theta"]])
 
     def nlp(self) -> dict[str, Any]:
-        """The multiple-shooting NLP as CasADi expressions, with the bounds of its constraints
-        (IPOPT's and CasADi's sqpmethod's formulation)."""
-        n = self.horizon
+        """The multiple-shooting NLP as CasADi expressions (IPOPT's and CasADi's sqpmethod's
+        formulation); its constraints per stage: the dynamics, the steering rate, the soft
+        track bound on either side (``nlp_bounds``)."""
         w = ca.SX.sym("w", self.n_w)
         p = ca.SX.sym("p", self.n_param)
-        step_max = self.limits.max_steering_step(self.ts)
         cost = 0
-        g, lbg, ubg = [], [], []
-        for k in range(n):
+        g = []
+        for k in range(self.horizon):
             x, u, e = w[self._ix[k]], w[self._iu[k]], w[self._ie[k]]
             x_next = w[self._ix[k + 1]]
             g.append(x_next - self.model_step(x, u, p))
-            lbg += [0.0] * N_STATE
-            ubg += [0.0] * N_STATE
             before = p[self.layout["u_prev"]] if k == 0 else w[self._iu[k - 1]]
             stage_cost, rate, offset, _ = self.stage_terms(x_next, u, before, e, p, k)
             cost += stage_cost
-            g.append(rate)
-            lbg.append(-step_max)
-            ubg.append(step_max)
             bound = p[self.layout["bound"]]
-            g += [offset - e - bound, -offset - e - bound]
-            lbg += [-np.inf, -np.inf]
-            ubg += [0.0, 0.0]
-        return {
-            "problem": {"x": w, "f": cost, "g": ca.vertcat(*g), "p": p},
-            "lbg": np.array(lbg, dtype=float),
-            "ubg": np.array(ubg, dtype=float),
-        }
+            g += [rate, offset - e - bound, -offset - e - bound]
+        return {"x": w, "f": cost, "g": ca.vertcat(*g), "p": p}
+
+    def nlp_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The bounds (lbg, ubg) of ``nlp``'s constraints, without building it."""
+        step_max = self.limits.max_steering_step(self.ts)
+        stage_lb = [0.0] * N_STATE + [-step_max, -np.inf, -np.inf]
+        stage_ub = [0.0] * N_STATE + [step_max, 0.0, 0.0]
+        return np.array(stage_lb * self.horizon), np.array(stage_ub * self.horizon)
 
     #: the settings ``stage_terms`` reads; a subclass whose own ``stage_terms`` reads more
     #: extends this, so that its compiled library is keyed on them
@@ -308,20 +323,27 @@ class NominalNMPC(Controller):
     def _multiple_shooting(self, name: str) -> MultipleShootingNLP:
         s = self.settings
         if name == "ipopt":
-            opts = ipopt_options(int(s["ipopt"]["max_iter"]), s["ipopt"].get("tol"))
+            ipopt = s["ipopt"]
+            opts = ipopt_options(int(ipopt["max_iter"]), ipopt.get("tol"), ipopt.get("options"))
         else:
             m = s["sqpmethod"]
             opts = sqpmethod_options(int(m["max_iter"]), float(m["tol"]), int(m["qp_max_iter"]))
         index = {"x": self._ix, "u": self._iu, "e": self._ie}
+        # the condensed SQP's fingerprint names the same problem (model, terms, sizes, limits):
+        # with it, a cached library of this NLP loads without building the NLP's expressions
+        sqp = getattr(getattr(self, "backend", None), "fingerprint", None)
+        fingerprint = None if sqp is None else f"{sqp}|{name}|{source_digest(shooting)}"
         return MultipleShootingNLP(
             "nmpc",
             name,
-            self.nlp(),
+            self.nlp,
+            self.nlp_bounds(),
             index,
             self.limits,
             self.layout["u_prev"],
             opts,
             s.get("compile"),
+            fingerprint,
         )
 
     # --- what the variants change ----------------------------------------------------------------

@@ -9,6 +9,7 @@ multipliers; after a failed solve the next one starts cold (x_0 and the previous
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import casadi as ca
@@ -27,21 +28,27 @@ class MultipleShootingNLP:
         self,
         name: str,
         plugin: str,
-        nlp: dict[str, Any],
+        nlp: Callable[[], dict[str, Any]],
+        bounds: tuple[np.ndarray, np.ndarray],
         index: dict[str, np.ndarray],
         limits: Any,
         u_prev: slice,
         opts: dict[str, Any],
         compile_settings: dict[str, Any] | None,
+        fingerprint: str | None = None,
     ) -> None:
-        self.n_w = int(nlp["problem"]["x"].numel())
+        """``nlp()``: the problem's expressions ({x, f, g, p}), built only when no cached
+        library has them; ``bounds``: (lbg, ubg); ``fingerprint``: a digest of everything the
+        problem's code depends on, the key of its cached library (None: the generated code's
+        own hash, which needs the expressions)."""
         self.ix, self.iu, self.ie = index["x"], index["u"], index["e"]
+        self.n_w = int(max(self.ix.max(), self.iu.max(), self.ie.max())) + 1
         self.n = len(self.iu)
         self.u_prev_slice = u_prev
         self.solver, self.library = make_nlpsol(
-            name, plugin, nlp["problem"], opts, compile_settings
+            name, plugin, nlp, opts, compile_settings, fingerprint
         )
-        self._lbg, self._ubg = ca.DM(nlp["lbg"]), ca.DM(nlp["ubg"])
+        self._lbg, self._ubg = ca.DM(bounds[0]), ca.DM(bounds[1])
         self._prepare = self._preparation(limits)
         self.reset()
 
@@ -134,7 +141,11 @@ class MultipleShootingNLP:
         return self.w[self.ix]
 
 
-def ipopt_options(max_iter: int, tol: float | None = None) -> dict[str, Any]:
+def ipopt_options(
+    max_iter: int, tol: float | None = None, extra: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
+    """CasADi's options for IPOPT; ``extra``: more of IPOPT's own options by name (e.g.
+    ``mu_init``), from the controller's ``ipopt.options``."""
     opts: dict[str, Any] = {
         "ipopt.print_level": 0,
         "ipopt.sb": "yes",
@@ -144,7 +155,24 @@ def ipopt_options(max_iter: int, tol: float | None = None) -> dict[str, Any]:
     }
     if tol is not None:
         opts["ipopt.tol"] = tol
+    for name, value in (extra or {}).items():
+        opts[f"ipopt.{name}"] = value
     return opts
+
+
+def check_ipopt_options(options: Mapping[str, Any], where: str) -> None:
+    """A ``CapeError`` naming ``where`` when IPOPT refuses an option's name or value."""
+    from cape.errors import CapeError
+
+    x = ca.SX.sym("x")
+    try:
+        ca.nlpsol("check", "ipopt", {"x": x, "f": x**2}, ipopt_options(1, extra=options))
+    except RuntimeError as exc:
+        reason = str(exc).strip().splitlines()[-1].split(": ", 1)[-1]
+        raise CapeError(
+            f"{where}: IPOPT refuses it ({reason}); the names and values are IPOPT's own "
+            "(https://coin-or.github.io/Ipopt/OPTIONS.html)"
+        ) from None
 
 
 def sqpmethod_options(max_iter: int, tol: float, qp_max_iter: int) -> dict[str, Any]:

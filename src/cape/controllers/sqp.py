@@ -111,8 +111,10 @@ class CondensedSQP:
         self.n_q = n_state + 2 + n_param
         compile_settings = settings.get("compile") or {}
         functions, self.library = None, None
+        self.fingerprint: str | None = None  # of the problem's generated code (when compiled)
         if compile_settings.get("enabled", False):
             fingerprint = self._fingerprint(n_param, step, terms, limits, ts, terms_key)
+            self.fingerprint = fingerprint
             cached = cached_functions(FUNCTIONS, fingerprint, compile_settings)
             if cached is not None:  # no need to build the expressions
                 functions, self.library = cached
