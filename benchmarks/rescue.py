@@ -65,8 +65,7 @@ def one_lap(
     sqp_iterations: int,
 ) -> tuple[list[dict], dict]:
     run = build_run(
-        config, plant, controller_name, eta, seed, model, ModelFolders(models), None,
-        envelope_data=str(Path("results/data/DYN-PP-ETHZ.npz")) if plant != "truth" else None,
+        config, plant, controller_name, eta, seed, model, ModelFolders(models), None
     )  # fmt: skip
     controller = run.controller
     rescue = controller.rescue

@@ -46,11 +46,9 @@ def rerun(task: dict[str, Any]) -> dict[str, Any]:
         config["controllers"][task["controller"]]["ipopt"]["options"] = task["ipopt"]
     if task["cap"]:
         config["controllers"][task["controller"]]["ipopt"]["max_iter"] = task["cap"]
-    training = f"results/data/DYN-PP-{config['data']['train_track']}.npz"
     run = build_run(
         config, task["plant"], task["controller"], task["eta"], task["seed"], task["internal"],
         ModelFolders(Path(f"results/models/rep{task['replicate']}")), None,
-        envelope_data=training if task["plant"] != "truth" else None,
     )  # fmt: skip
     solves: list[tuple[bool, int, float]] = []  # every rescue: converged, iterations, ms
     rescue = run.controller.rescue if task["rescue"] == "ipopt" else None

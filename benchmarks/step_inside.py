@@ -25,18 +25,19 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from nmpc_step import replay  # a sibling script: run as `python benchmarks/step_inside.py`
 
 from cape.closedloop.setup import ModelFolders, build_run
 from cape.config import load_config
 
 
 def build(config: dict, args: argparse.Namespace, model: str, law: str, eta: float) -> Any:
+    """The study's run, as `cape rollout` builds it (the plant's envelope from the config's
+    training data)."""
     plant = model if args.plant == "learned" else "truth"
-    training = f"results/data/DYN-PP-{config['data']['train_track']}.npz"
     return build_run(
         config, plant, law, eta, args.seed, model,
         ModelFolders(Path(f"results/models/rep{args.replicate}")), None,
-        envelope_data=training if plant != "truth" else None,
     )  # fmt: skip
 
 
@@ -63,13 +64,7 @@ def one(config: dict, args: argparse.Namespace, model: str, law: str, eta: float
     inside["step median"] = float(np.median(result.solve_ms))
     inside["plant Φ"] = 1e3 * result.plant_s / steps
     # the replay: a fresh controller, the same problems in order; then Φ on the same windows
-    fresh = build(config, args, model, law, eta).controller
-    fresh.reset(problems[0][0][:6])
-    solve_ms = np.empty(len(problems))
-    for i, (x0, params, throttle) in enumerate(problems):
-        start = time.perf_counter()
-        fresh.solve(x0, params, throttle)
-        solve_ms[i] = 1e3 * (time.perf_counter() - start)
+    solve_ms = replay(build(config, args, model, law, eta).controller, problems)["ms"]
     predictor = controller.internal.predictor
     phi_ms = np.nan
     if predictor is not None:
