@@ -3,7 +3,7 @@ replicates`): the CPU of its trainings, solvers and every run that uses its netw
 learned study's, and the ground-truth study's with a learned internal model), split into
 training, a job's fixed part, the plant's Φ, the controller's step (solve, internal Φ and any
 rescue) and the loop around them; then an NMPC step of a study job by part, per controller and
-internal model, and the IPOPT rescue's success rate and cost.
+internal model, and the rescue's success rate and cost.
 
 Training and solver CPU come from the rules' benchmark files (`cpu_time`); a run's phases from
 its own timing.json (`job_s`, wall seconds of a single-threaded job: its CPU time, near enough).
@@ -89,8 +89,8 @@ def step_breakdown(runs: list[dict]) -> None:
 
 
 def rescue_table(runs: list[dict]) -> None:
-    """How often the IPOPT rescue solved a problem the SQP had not, and what it cost, per
-    internal model and η band."""
+    """How often the rescue (Fatrop or IPOPT) solved a problem the SQP had not, and what it
+    cost, per internal model and η band."""
     cells: dict[tuple[str, str], dict[str, float]] = defaultdict(lambda: defaultdict(float))
     for r in runs:
         if r["rescued"] is None or not r["rescues"]:
@@ -102,7 +102,7 @@ def rescue_table(runs: list[dict]) -> None:
             cells[key]["s"] += r["parts"].get("rescue", 0.0)
     if not cells:
         return
-    print("\nIPOPT rescues: tried, succeeded (the SQP had failed), mean ms per rescue")
+    print("\nrescues: tried, succeeded (the SQP had failed), mean ms per rescue")
     for (internal, band), c in sorted(cells.items()):
         rate = c["succeeded"] / c["tried"]
         print(f"  {internal:9} {band:9} {c['tried']:6.0f} {c['succeeded']:6.0f} ({rate:6.1%})"

@@ -1,12 +1,13 @@
-"""How often the NMPC's IPOPT rescue solves a problem the condensed SQP failed, and at what
-cost, for several IPOPT iteration caps and a longer condensed SQP, on the same problems.
+"""How often the NMPC's rescue solves a problem the condensed SQP failed, and at what cost, for
+IPOPT (several iteration caps), Fatrop and a longer condensed SQP, on the same problems.
 
 Drives closed-loop laps as the learned study does (the trained model as plant and as the NMPC's
 internal model; or ``--plant truth``, as the ground-truth study) with the configured NMPC. Every
 time the SQP fails and the rescue is called, each capped IPOPT solves the same problem from the
-same start (the SQP's last iterate), and a second condensed SQP with more iterations solves it
-warm (from that iterate) and cold (the previous input held), each timed; then the configured
-rescue solves it and the lap goes on as in the study. Prints, per model and η: rescues, and
+same start (the SQP's last iterate), so does Fatrop on the stage-wise form (in its guarded
+worker, as the study runs it), and a second condensed SQP with more iterations solves it warm
+(from that iterate) and cold (the previous input held), each timed; then the configured rescue
+solves it and the lap goes on as in the study. Prints, per model and η: rescues, and
 per variant the share solved, the median and p90 time per rescue, the median iterations, and
 how many of its solutions agree with the configured rescue's first input (within 1e-3).
 
@@ -70,6 +71,7 @@ def one_lap(
     controller = run.controller
     rescue = controller.rescue
     variants: dict[Any, Any] = {cap: capped(controller, cap) for cap in caps}
+    variants["fatrop"] = controller._multiple_shooting("fatrop")
     sqp = longer_sqp(controller, sqp_iterations)
     configured = int(controller.settings["ipopt"]["max_iter"])
     real = rescue.solve
@@ -78,8 +80,12 @@ def one_lap(
     def measured(x0, params, throttle, guess=None):
         record: dict[str, Any] = {}
         for cap, solver in variants.items():
+            start_at = guess
+            if guess is not None and solver is not rescue:  # the guess in the solver's own order
+                index = rescue.ix, rescue.iu, rescue.ie
+                start_at = solver.decision_vector(*(guess[i] for i in index))
             start = time.perf_counter()
-            plan, ok = solver.solve(x0, params, throttle, guess=guess)
+            plan, ok = solver.solve(x0, params, throttle, guess=start_at)
             record[cap] = (ok, (time.perf_counter() - start) * 1e3, solver.stats.iterations,
                            None if plan is None else np.asarray(plan[0]))  # fmt: skip
         inputs, _ = controller.backend.iterate()  # where the failed SQP stopped
@@ -119,9 +125,11 @@ def main() -> None:
     parser.add_argument("--json", type=Path, help="write the per-rescue records here")
     args = parser.parse_args()
     config = load_config(args.config)
+    # the lap is driven with IPOPT's rescue at its configured cap, the reference of the others
+    config["controllers"][args.controller]["sqp"]["rescue"] = "ipopt"
     configured = int(config["controllers"][args.controller]["ipopt"]["max_iter"])
     caps = [c for c in args.caps if c != configured]
-    order: list[Any] = [configured, *caps, "sqp-warm", "sqp-cold"]
+    order: list[Any] = [configured, *caps, "fatrop", "sqp-warm", "sqp-cold"]
     dump: dict[str, Any] = {}
     names = [f"cap {c}" if isinstance(c, int) else c for c in order]
     print(f"{'model':6} {'η':>4} {'laps':>5} {'rescues':>8}  "

@@ -46,12 +46,14 @@ def rerun(task: dict[str, Any]) -> dict[str, Any]:
         config["controllers"][task["controller"]]["ipopt"]["options"] = task["ipopt"]
     if task["cap"]:
         config["controllers"][task["controller"]]["ipopt"]["max_iter"] = task["cap"]
+    if task["fatrop"]:
+        config["controllers"][task["controller"]]["fatrop"]["options"] = task["fatrop"]
     run = build_run(
         config, task["plant"], task["controller"], task["eta"], task["seed"], task["internal"],
         ModelFolders(Path(f"results/models/rep{task['replicate']}")), None,
     )  # fmt: skip
     solves: list[tuple[bool, int, float]] = []  # every rescue: converged, iterations, ms
-    rescue = run.controller.rescue if task["rescue"] == "ipopt" else None
+    rescue = run.controller.rescue if task["rescue"] in ("ipopt", "fatrop") else None
     if rescue is not None:
         real = rescue.solve
 
@@ -83,10 +85,11 @@ def _merge(base: dict, over: dict) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--rescue", required=True, help="the rescue to try: ipopt, sqp or null")
+    parser.add_argument("--rescue", required=True, help="the rescue to try: ipopt, fatrop or null")
     parser.add_argument("--sqp", default="{}", help="other sqp settings, JSON")
     parser.add_argument("--ipopt", default="{}", help="IPOPT's own options, JSON (ipopt.options)")
     parser.add_argument("--cap", type=int, help="IPOPT's iterations at most (ipopt.max_iter)")
+    parser.add_argument("--fatrop", default="{}", help="Fatrop's options, JSON (fatrop.options)")
     parser.add_argument("--runs", default="results/replicates/study/runs.parquet")
     parser.add_argument("--study", nargs="+", default=["learned", "truth"])
     parser.add_argument("--internal", nargs="+")
@@ -118,7 +121,8 @@ def main() -> None:
                       "old_succeeded": (timing.get("rescues") or {}).get("succeeded", 0),
                       "config": args.config, "overlays": args.overlay,
                       "rescue": rescue_setting(args.rescue), "sqp": json.loads(args.sqp),
-                      "ipopt": json.loads(args.ipopt), "cap": args.cap})  # fmt: skip
+                      "ipopt": json.loads(args.ipopt), "cap": args.cap,
+                      "fatrop": json.loads(args.fatrop)})  # fmt: skip
     print(f"{len(tasks)} runs that called the rescue; rerunning with rescue = {args.rescue}",
           flush=True)  # fmt: skip
     with ProcessPoolExecutor(args.jobs) as pool:

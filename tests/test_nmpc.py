@@ -51,6 +51,27 @@ def _run(cfg, solver="sqp", controller="nmpc", eta=0.0, **kw):
     return build_run(c, "truth", controller, eta, 0, "truth", Path("unused"), c["_raceline"], **kw)
 
 
+def _recorded(run, limit: int | None = None) -> list[tuple]:
+    """The lap's problems (x0, params, throttle) as the SQP received them, the first ``limit``."""
+    problems: list[tuple] = []
+    real = run.controller.backend.solve
+
+    def record(x0, params, throttle):
+        if limit is None or len(problems) < limit:
+            problems.append((x0.copy(), params.copy(), throttle))
+        return real(x0, params, throttle)
+
+    run.controller.backend.solve = record
+    run()
+    return problems
+
+
+def _with_rescue(cfg, rescue: str):
+    c = copy.deepcopy(cfg)
+    c["controllers"]["nmpc"]["sqp"]["rescue"] = rescue
+    return c
+
+
 def test_nmpc_with_the_true_internal_model_laps(cfg) -> None:
     run = _run(cfg)
     result = run()
@@ -214,10 +235,13 @@ def test_the_adaptive_and_robust_nmpc_lap_with_the_true_internal_model(cfg, name
     assert sum(parts.values()) <= result.solve_ms.sum() / 1e3
 
 
-def test_the_rescue_counts_the_solves_it_saved(cfg) -> None:
-    """Every tenth SQP solve is made to fail: IPOPT, from the SQP's last iterate, solves the
-    same problem; each rescue is counted as tried and, when IPOPT converges, as succeeded."""
-    run = _run(cfg)
+@pytest.mark.parametrize("rescue", ["fatrop", "ipopt"])
+def test_the_rescue_counts_the_solves_it_saved(cfg, rescue: str) -> None:
+    """Every tenth SQP solve is made to fail: the rescue (Fatrop, IPOPT), from the SQP's last
+    iterate, solves the same problem; each rescue is counted as tried and, when it converges,
+    as succeeded."""
+    run = _run(_with_rescue(cfg, rescue))
+    assert run.controller.rescue.library.name.startswith(f"{rescue}_nlp_")
     backend = run.controller.backend
     real = backend.solve
     calls = {"n": 0}
@@ -331,15 +355,18 @@ def test_the_robust_margin_grows_with_the_prediction_error(cfg) -> None:
     assert c.margin() == pytest.approx(0.10 + 0.02 * 0.35)
 
 
-def test_the_compiled_solver_is_built_once_and_reused(cfg, solver_cache: Path) -> None:
-    """The condensed SQP's functions and its IPOPT rescue's NLP: one library each per model
-    structure, shared by the three NMPCs and never rebuilt."""
-    assert _run(cfg).controller.rescue is not None  # compiles (or finds) both libraries
-    libraries = sorted(solver_cache.glob("*.so"))
-    assert [p.name.split("_")[0] for p in libraries] == ["condensed", "ipopt"]
+def test_the_compiled_solver_is_built_once_and_reused(cfg, tmp_path: Path) -> None:
+    """The condensed SQP's functions and its rescue's NLP (Fatrop's): one library each per
+    model structure, shared by the three NMPCs and never rebuilt."""
+    cache = tmp_path / "solvers"
+    for name in ("nmpc", "anmpc", "rnmpc"):
+        cfg["controllers"][name]["compile"]["cache"] = str(cache)
+    assert _run(cfg).controller.rescue is not None  # compiles both libraries
+    libraries = sorted(cache.glob("*.so"))
+    assert [p.name.split("_")[0] for p in libraries] == ["condensed", "fatrop"]
     stamps = [p.stat().st_mtime_ns for p in libraries]
     assert _run(cfg, controller="anmpc").controller.rescue is not None  # the same structure
-    assert sorted(solver_cache.glob("*.so")) == libraries
+    assert sorted(cache.glob("*.so")) == libraries
     assert [p.stat().st_mtime_ns for p in libraries] == stamps
 
 
@@ -347,6 +374,7 @@ def test_a_cached_rescue_loads_without_its_expressions_and_solves_the_same(cfg) 
     """Once compiled, the rescue's NLP library is found by the problem's fingerprint: a later
     run loads it without building the NLP's expressions, and IPOPT from the library solves a
     problem as IPOPT on the expressions does."""
+    cfg = _with_rescue(cfg, "ipopt")
     first = _run(cfg).controller
     assert first.rescue is not None and first.rescue.library.name.startswith("ipopt_nlp_")
     second = _run(cfg).controller
@@ -361,16 +389,7 @@ def test_a_cached_rescue_loads_without_its_expressions_and_solves_the_same(cfg) 
     plain = copy.deepcopy(cfg)
     plain["controllers"]["nmpc"]["compile"]["enabled"] = False
     reference = _run(plain).controller.rescue
-    problems = []
-    real = run.controller.backend.solve
-
-    def record(x0, params, throttle):
-        if len(problems) < 40:
-            problems.append((x0.copy(), params.copy(), throttle))
-        return real(x0, params, throttle)
-
-    run.controller.backend.solve = record
-    run()
+    problems = _recorded(run, 40)
     for x0, params, throttle in problems[::10]:
         for solver in (rescue, reference):
             solver.reset()
@@ -421,3 +440,124 @@ def test_the_adaptation_function_is_cached_and_the_same(cfg, solver_cache: Path)
     key = c._adaptation_key()
     c.alpha *= 2
     assert c._adaptation_key() != key  # another step size: another function
+
+
+def test_the_stagewise_nlp_is_the_same_problem(cfg) -> None:
+    """Fatrop's stage-wise NLP and the multiple-shooting NLP, at the same trajectory (inputs
+    drawn at random, states rolled out, slacks drawn): the same cost, both gaps zero, and the
+    same steering rates and track constraints."""
+    from cape.controllers.stagewise import stagewise_bounds, stagewise_index, stagewise_nlp
+
+    run = _run(cfg)
+    c = run.controller
+    problems = _recorded(run)
+    n, n_state = c.horizon, c._ix.shape[1]
+    index = stagewise_index(n, n_state)
+    lbg, ubg = stagewise_bounds(n, n_state, c.limits.max_steering_step(c.ts))
+    original, stagewise = c.nlp(), stagewise_nlp(c)
+    assert stagewise["g"].shape[0] == len(lbg) == len(ubg)
+    f_o = ca.Function("o", [original["x"], original["p"]], [original["f"], original["g"]])
+    f_s = ca.Function("s", [stagewise["x"], stagewise["p"]], [stagewise["f"], stagewise["g"]])
+    step = ca.Function("step", [original["x"][c._ix[0]], original["x"][c._iu[0]], original["p"]],
+                       [c.model_step(original["x"][c._ix[0]], original["x"][c._iu[0]],
+                                     original["p"])])  # fmt: skip
+    rng = np.random.default_rng(1)
+    gap = np.asarray(lbg == ubg)
+    for x0, params, _ in problems[::97]:
+        inputs = np.column_stack([rng.uniform(0.1, 0.6, n), rng.uniform(-0.2, 0.2, n)])
+        states = [x0]
+        for k in range(n):
+            states.append(np.asarray(step(states[-1], inputs[k], params)).ravel())
+        slacks = rng.uniform(0, 0.05, n)
+        w_o = np.zeros(c.n_w)
+        w_o[c._ix], w_o[c._iu], w_o[c._ie] = np.array(states), inputs, slacks
+        w_s = np.zeros(int(index["e"][-1]) + 1)
+        w_s[index["x"]], w_s[index["u"]], w_s[index["e"]] = np.array(states), inputs, slacks
+        w_s[index["c"]] = inputs  # the copy of u_k that stage k+1 carries
+        cost_o, g_o = (np.asarray(v).ravel() for v in f_o(w_o, params))
+        cost_s, g_s = (np.asarray(v).ravel() for v in f_s(w_s, params))
+        np.testing.assert_allclose(cost_s, cost_o, rtol=1e-12)
+        g_o = g_o.reshape(n, -1)  # per stage: the gap, the rate, the track bound on either side
+        assert np.max(np.abs(g_o[:, :n_state])) < 1e-12 and np.max(np.abs(g_s[gap])) < 1e-12
+        np.testing.assert_allclose(np.sort(g_s[~gap]), np.sort(g_o[:, n_state:].ravel()),
+                                   rtol=1e-12, atol=1e-15)  # fmt: skip
+
+
+def test_fatrop_and_ipopt_find_the_same_plan_for_the_true_model(cfg) -> None:
+    """On the true model's problems of a lap at η = 0, each started cold, Fatrop's plan is
+    IPOPT's (tight tolerances: one local minimum)."""
+    run = _run(cfg)
+    problems = _recorded(run)
+    fatrop = _run(_with_rescue(cfg, "fatrop")).controller.rescue
+    plain = copy.deepcopy(cfg)
+    plain["controllers"]["nmpc"]["compile"]["enabled"] = False
+    ipopt = _run(plain).controller.rescue
+    for x0, params, throttle in problems[5::60]:
+        fatrop.reset()
+        ipopt.reset()
+        a, ok_a = fatrop.solve(x0, params, throttle)
+        b, ok_b = ipopt.solve(x0, params, throttle)
+        assert ok_a and ok_b
+        np.testing.assert_allclose(a, b, atol=1e-5)
+
+
+def test_a_solve_that_does_not_end_fails_at_its_cpu_limit() -> None:
+    """A call that would never return ends its worker at the CPU limit and reports failure;
+    the next call starts a new worker and returns as usual."""
+    from cape.controllers.guard import Guarded
+
+    def handler(request):
+        if request == "forever":
+            while True:
+                pass
+        return request * 2
+
+    guarded = Guarded(handler, cpu_s=0.3)
+    assert guarded(21) == 42
+    first = guarded.pid
+    assert guarded("forever") is None
+    assert guarded.limited == 1 and guarded.pid is None
+    assert guarded(4) == 8 and guarded.pid not in (None, first)
+    guarded.close()
+
+
+def test_an_option_fatrop_does_not_know_names_the_config_key(cfg) -> None:
+    from cape.errors import CapeError
+
+    cfg["controllers"]["nmpc"]["fatrop"]["options"] = {"mu_inti": 1e-4}
+    with pytest.raises(CapeError, match=r"controllers\.nmpc\.fatrop\.options.*mu_inti"):
+        _run(cfg)
+
+
+def test_a_fatrop_rescue_without_its_settings_names_the_config_key(cfg) -> None:
+    from cape.errors import CapeError
+
+    c = _with_rescue(cfg, "fatrop")
+    del c["controllers"]["nmpc"]["fatrop"]
+    with pytest.raises(CapeError, match=r"controllers\.nmpc\.fatrop"):
+        _run(c).controller.rescue  # noqa: B018 (built when first needed)
+
+
+def test_a_cached_fatrop_rescue_loads_without_its_expressions(cfg, monkeypatch) -> None:
+    """Fatrop's library is found by the problem's fingerprint too: a later run loads it
+    without building the stage-wise NLP, and it solves a problem as the first one did."""
+    from cape.controllers import stagewise
+
+    first = _run(cfg).controller.rescue
+    assert first.library.name.startswith("fatrop_nlp_")
+
+    def not_built(controller):
+        raise AssertionError("the stage-wise NLP was built although its library is cached")
+
+    monkeypatch.setattr(stagewise, "stagewise_nlp", not_built)
+    run = _run(cfg)
+    second = run.controller.rescue
+    assert second.library == first.library
+    problems = _recorded(run, 30)
+    for x0, params, throttle in problems[::10]:
+        first.reset()
+        second.reset()
+        a, ok_a = first.solve(x0, params, throttle)
+        b, ok_b = second.solve(x0, params, throttle)
+        assert ok_a and ok_b
+        np.testing.assert_array_equal(a, b)

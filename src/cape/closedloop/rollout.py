@@ -44,7 +44,7 @@ class RolloutResult:
     """Wall seconds of the named parts of the controller's steps (``Controller.phase_s``: an
     NMPC's estimate, internal Φ, parameters, solve, rescue, adaptation)."""
     rescues_succeeded: int = 0
-    """Steps whose IPOPT rescue converged where the SQP had not (``metrics["rescues"]`` tried)."""
+    """Steps whose rescue converged where the SQP had not (``metrics["rescues"]`` tried)."""
 
 
 def initial_state(line: ReferenceLine, vx0: float) -> np.ndarray:
@@ -154,7 +154,7 @@ def run_lap(
     metrics = summarise(series, failure, lap_time, steps, time_limit, penalty)
     metrics.update(divergence_record(*(diverged or (None, None))))
     metrics["fallbacks"] = sum(fallback_steps)  # steps whose solve failed (model-based)
-    metrics["rescues"] = rescued  # steps the SQP left to its IPOPT rescue
+    metrics["rescues"] = rescued  # steps the SQP left to its rescue
     metrics["solver_iterations_median"] = float(np.median(iterations)) if iterations else None
     metrics["solver_iterations_max"] = max(iterations) if iterations else None
     window = max(round(failure_window / ts), 0)

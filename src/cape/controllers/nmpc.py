@@ -14,8 +14,10 @@ states and solves the condensed problem with a feasible-iterate SQP (``cape.cont
 ``ipopt`` (the reference) and ``sqpmethod`` (CasADi's SQP, the old default) solve the
 multiple-shooting NLP (``nlp``, ``cape.controllers.shooting``). When the internal model has no
 throttle path (DPM predicts Frx), only the steering is optimised and the throttle comes from the
-PID speed loop. When a solve fails, the controller applies the next input of its previous plan
-and counts a fallback.
+PID speed loop. When the SQP does not converge, a rescue solves the same problem from its last
+iterate: Fatrop on the stage-wise form of the NLP (``cape.controllers.stagewise``, the default)
+or IPOPT on the multiple-shooting NLP. When that fails too, the controller applies the next
+input of its previous plan and counts a fallback.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ import casadi as ca
 import numpy as np
 
 from cape.compiled import source_digest
-from cape.controllers import shooting
+from cape.controllers import shooting, stagewise
 from cape.controllers.base import GAINS, Controller, PIDLoop, require
 from cape.controllers.internal import N_STATE
 from cape.controllers.registry import register_controller
@@ -81,7 +83,7 @@ NMPC_SCHEMA: dict[str, Any] = {
                 "tol": _POSITIVE,
                 "newton_tol": _POSITIVE,
                 "radius": _POSITIVE,
-                "rescue": {"enum": ["ipopt", None]},
+                "rescue": {"enum": ["fatrop", "ipopt", None]},
             },
         },
         "ipopt": {
@@ -94,6 +96,19 @@ NMPC_SCHEMA: dict[str, Any] = {
                 "options": {  # IPOPT's own options by name, e.g. mu_init
                     "type": "object",
                     "additionalProperties": {"type": ["number", "string"]},
+                },
+            },
+        },
+        "fatrop": {
+            "type": "object",
+            "required": ["max_iter", "cpu_s"],
+            "additionalProperties": False,
+            "properties": {
+                "max_iter": {"type": "integer", "minimum": 1},
+                "cpu_s": _POSITIVE,
+                "options": {  # Fatrop's own options by name, e.g. mu_init
+                    "type": "object",
+                    "additionalProperties": {"type": ["number", "string", "boolean"]},
                 },
             },
         },
@@ -130,10 +145,16 @@ class NominalNMPC(Controller):
 
     @classmethod
     def check_settings(cls, name: str, settings: dict[str, Any], source: str = "config") -> None:
-        """IPOPT knows its own option names and values: ask it, on a one-variable problem."""
+        """IPOPT and Fatrop know their own option names and values: ask them, on a tiny
+        problem."""
         options = settings.get("ipopt", {}).get("options")
         if options:
             check_ipopt_options(options, f"{source}: `controllers.{name}.ipopt.options`")
+        options = settings.get("fatrop", {}).get("options")
+        if options:
+            stagewise.check_fatrop_options(
+                options, f"{source}: `controllers.{name}.fatrop.options`"
+            )
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -322,6 +343,8 @@ class NominalNMPC(Controller):
 
     def _multiple_shooting(self, name: str) -> MultipleShootingNLP:
         s = self.settings
+        if name == "fatrop":
+            return self._stagewise()
         if name == "ipopt":
             ipopt = s["ipopt"]
             opts = ipopt_options(int(ipopt["max_iter"]), ipopt.get("tol"), ipopt.get("options"))
@@ -346,6 +369,37 @@ class NominalNMPC(Controller):
             fingerprint,
         )
 
+    def _stagewise(self) -> MultipleShootingNLP:
+        """Fatrop on the stage-wise form of the same NLP (``cape.controllers.stagewise``)."""
+        fatrop = self.settings.get("fatrop")
+        if fatrop is None:
+            raise CapeError(
+                f"controllers.{self.name}.fatrop: missing; `sqp.rescue: fatrop` needs "
+                "`fatrop: {max_iter: 100, cpu_s: 0.5}` (and optionally Fatrop's own `options`)"
+            )
+        n_state = self._ix.shape[1]
+        index = stagewise.stagewise_index(self.horizon, n_state)
+        lbg, ubg = stagewise.stagewise_bounds(
+            self.horizon, n_state, self.limits.max_steering_step(self.ts)
+        )
+        opts = stagewise.fatrop_options(int(fatrop["max_iter"]), lbg, ubg, fatrop.get("options"))
+        sqp = getattr(getattr(self, "backend", None), "fingerprint", None)
+        digest = source_digest(shooting, stagewise)
+        return stagewise.StagewiseNLP(
+            "nmpc",
+            "fatrop",
+            lambda: stagewise.stagewise_nlp(self),
+            (lbg, ubg),
+            index,
+            self.limits,
+            self.layout["u_prev"],
+            opts,
+            self.settings.get("compile"),
+            None if sqp is None else f"{sqp}|fatrop|{digest}",
+            copies=index["c"],
+            cpu_s=float(fatrop["cpu_s"]),
+        )
+
     # --- what the variants change ----------------------------------------------------------------
     def estimate(self, z: np.ndarray) -> np.ndarray:
         """The state the NLP starts from (the robust NMPC filters it)."""
@@ -368,7 +422,7 @@ class NominalNMPC(Controller):
         self._last: tuple[np.ndarray, np.ndarray] | None = None
         self.fallbacks = 0
         self.rescues = 0
-        self.rescues_succeeded = 0  # rescues whose IPOPT solve converged where the SQP had not
+        self.rescues_succeeded = 0  # rescues that converged where the SQP had not
         self.dhat = np.zeros(3)
         self._theta_one = np.ones(3)
         self.phi_now: np.ndarray | None = None
@@ -394,7 +448,7 @@ class NominalNMPC(Controller):
         self, x0: np.ndarray, params: np.ndarray, throttle: tuple[float, float]
     ) -> tuple[np.ndarray | None, bool]:
         """One solve, warm-started from the previous solution: the plan (N × 2) and success.
-        When the condensed SQP does not converge and a rescue solver is configured, IPOPT solves
+        When the condensed SQP does not converge and a rescue solver is configured, it solves
         the same problem from the SQP's last iterate (its states rolled out), and its solution
         becomes the SQP's next warm start."""
         start = time.perf_counter()
@@ -407,7 +461,7 @@ class NominalNMPC(Controller):
         rescue = self.rescue
         assert rescue is not None
         guess = rescue.decision_vector(self.backend.states(), inputs, slacks)
-        if not np.all(np.isfinite(guess)):  # the SQP's iterate left the floats: IPOPT's own start
+        if not np.all(np.isfinite(guess)):  # the SQP's iterate left the floats: a cold start
             guess = None
         plan, ok = rescue.solve(x0, params, throttle, guess=guess)
         if ok:
