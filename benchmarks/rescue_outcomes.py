@@ -100,9 +100,12 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--json", type=Path, help="write every rerun's record here")
     args = parser.parse_args()
-    runs = pd.read_parquet(args.runs).drop_duplicates("folder")
+    runs = pd.read_parquet(args.runs)
     runs = runs[runs.controller.isin(NMPCS) & (runs.rescues > 0)]
+    # a run two studies share (the ablation's diagonal is the learned study's) is listed under
+    # each: select the studies first, then keep each folder once
     runs = runs[runs.study.isin(args.study) & runs.replicate.isin(args.replicate)]
+    runs = runs.drop_duplicates("folder")
     if args.internal:
         runs = runs[runs.internal.isin(args.internal)]
     if args.limit:
