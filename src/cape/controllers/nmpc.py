@@ -352,10 +352,6 @@ class NominalNMPC(Controller):
             m = s["sqpmethod"]
             opts = sqpmethod_options(int(m["max_iter"]), float(m["tol"]), int(m["qp_max_iter"]))
         index = {"x": self._ix, "u": self._iu, "e": self._ie}
-        # the condensed SQP's fingerprint names the same problem (model, terms, sizes, limits):
-        # with it, a cached library of this NLP loads without building the NLP's expressions
-        sqp = getattr(getattr(self, "backend", None), "fingerprint", None)
-        fingerprint = None if sqp is None else f"{sqp}|{name}|{source_digest(shooting)}"
         return MultipleShootingNLP(
             "nmpc",
             name,
@@ -366,8 +362,15 @@ class NominalNMPC(Controller):
             self.layout["u_prev"],
             opts,
             s.get("compile"),
-            fingerprint,
+            self._rescue_key(name, shooting),
         )
+
+    def _rescue_key(self, name: str, *modules: Any) -> str | None:
+        """The cache key of rescue ``name``'s library, built by ``modules``: the condensed SQP's
+        fingerprint names the same problem (model, terms, sizes, limits), so a cached library of
+        the NLP loads without building its expressions. None without a compiled SQP."""
+        sqp = getattr(getattr(self, "backend", None), "fingerprint", None)
+        return None if sqp is None else f"{sqp}|{name}|{source_digest(*modules)}"
 
     def _stagewise(self) -> MultipleShootingNLP:
         """Fatrop on the stage-wise form of the same NLP (``cape.controllers.stagewise``)."""
@@ -383,8 +386,6 @@ class NominalNMPC(Controller):
             self.horizon, n_state, self.limits.max_steering_step(self.ts)
         )
         opts = stagewise.fatrop_options(int(fatrop["max_iter"]), lbg, ubg, fatrop.get("options"))
-        sqp = getattr(getattr(self, "backend", None), "fingerprint", None)
-        digest = source_digest(shooting, stagewise)
         return stagewise.StagewiseNLP(
             "nmpc",
             "fatrop",
@@ -395,7 +396,7 @@ class NominalNMPC(Controller):
             self.layout["u_prev"],
             opts,
             self.settings.get("compile"),
-            None if sqp is None else f"{sqp}|fatrop|{digest}",
+            self._rescue_key("fatrop", shooting, stagewise),
             copies=index["c"],
             cpu_s=float(fatrop["cpu_s"]),
         )
