@@ -8,7 +8,8 @@ internal model, and the rescue's success rate and cost.
 Training and solver CPU come from the rules' benchmark files (`cpu_time`); a run's phases from
 its own timing.json (`job_s`, wall seconds of a single-threaded job: its CPU time, near enough).
 What no file records (the interpreter before cape's first import, Snakemake's own work per job)
-is left out and said so.
+is left out and said so. A host reference (the same PID and RISE laps in every study) is
+printed beside the total, as this machine's speed drifts between studies.
 
     python benchmarks/draw_cost.py [--results results] [--replicate 1] [--models dpm ddm epm]
 """
@@ -56,6 +57,29 @@ def draw_runs(results: Path, replicate: int, models: set[str] | None = None) -> 
                      "rescues": int(metrics.get("rescues") or 0),
                      "rescued": rescues.get("succeeded")})  # fmt: skip
     return rows
+
+
+def host_reference(results: Path) -> str:
+    """The same work in every study, a gauge of the machine's speed while it ran: replicate 0's
+    ground-truth plant driven by PID and RISE (no network, no solver; unchanged by the speed
+    work), per step of their laps and per job's fixed part. Two studies' draw costs compare
+    after scaling by it; the host's speed drifts by tens of per cent between hours."""
+    lap = steps = fixed = jobs = 0.0
+    for law in ("pid", "rise"):
+        for path in (results / "runs" / "truth" / "rep0" / "truth" / "truth" / law).glob(
+            "*/*/timing.json"
+        ):
+            job = json.loads(path.read_text()).get("job_s")
+            if job is None:
+                continue
+            lap, steps, jobs = lap + job["lap"], steps + job["steps"], jobs + 1
+            fixed += job["startup"] + job["config"] + job["build"] + job["write"]
+    if not jobs:
+        return "host reference: no PID or RISE run on the ground-truth plant in replicate 0"
+    return (
+        f"host reference (replicate 0, ground-truth plant, PID and RISE, {jobs:.0f} runs): "
+        f"{1e6 * lap / steps:.0f} µs a step of the lap, {fixed / jobs:.3f} s a job's fixed part"
+    )
 
 
 STEP_PARTS = ("estimate", "internal_phi", "parameters", "solve", "rescue", "adaptation")
@@ -153,6 +177,7 @@ def main() -> None:
         f"  total     {total:8.0f} s of CPU ({verdict} the {args.budget:.0f} s budget); not "
         "counted: interpreter start-up before cape's imports, Snakemake's work per job"
     )
+    print(f"  {host_reference(args.results)}")
     print(f"\n{'study':8} {'controller':10} {'jobs':>5} {'fixed':>7} {'plant Φ':>8} "
           f"{'step':>8} {'loop':>6} {'rescues':>8}")  # fmt: skip
     for (study, controller), c in sorted(by_cell.items()):
