@@ -16,7 +16,6 @@ time per solve, their ratio, and whether every solve's outcome and plan are bit-
 from __future__ import annotations
 
 import argparse
-import copy
 import shlex
 import tempfile
 import time
@@ -24,9 +23,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from nmpc_step import record_lap, replay  # a sibling script: run as `python benchmarks/...`
+from nmpc_step import controller_with, record_lap, replay  # a sibling script
 
-from cape.closedloop.setup import build_run
 from cape.config import load_config
 
 
@@ -35,14 +33,10 @@ def controller_built(
 ) -> tuple[Any, float]:
     """The NMPC with its libraries compiled with ``flags`` into ``cache``, and the seconds it
     took to build (compiling included when the cache does not hold them yet)."""
-    cfg = copy.deepcopy(config)
-    cfg["controllers"]["nmpc"]["compile"] = {
-        **cfg["controllers"]["nmpc"]["compile"],
-        "flags": flags,
-        "cache": str(cache),
-    }
+    compile_settings = {**config["controllers"]["nmpc"]["compile"], "flags": flags,
+                        "cache": str(cache)}  # fmt: skip
     start = time.perf_counter()
-    controller = build_run(cfg, "truth", "nmpc", 0.0, 0, internal, models).controller
+    controller = controller_with(config, internal, models, compile=compile_settings)
     assert controller.rescue is not None  # built on first use: build its library now
     return controller, time.perf_counter() - start
 

@@ -59,6 +59,11 @@ def draw_runs(results: Path, replicate: int, models: set[str] | None = None) -> 
     return rows
 
 
+def fixed_part(job: dict) -> float:
+    """A job's fixed part (timing.json ``job_s``): start-up, config, build and writing."""
+    return job["startup"] + job["config"] + job["build"] + job["write"]
+
+
 def host_reference(results: Path) -> str:
     """The same work in every study, a gauge of the machine's speed while it ran: replicate 0's
     ground-truth plant driven by PID and RISE (no network, no solver; unchanged by the speed
@@ -73,7 +78,7 @@ def host_reference(results: Path) -> str:
             if job is None:
                 continue
             lap, steps, jobs = lap + job["lap"], steps + job["steps"], jobs + 1
-            fixed += job["startup"] + job["config"] + job["build"] + job["write"]
+            fixed += fixed_part(job)
     if not jobs:
         return "host reference: no PID or RISE run on the ground-truth plant in replicate 0"
     return (
@@ -157,7 +162,7 @@ def main() -> None:
     parts: dict[str, float] = defaultdict(float)
     by_cell: dict[tuple[str, str], dict[str, float]] = defaultdict(lambda: defaultdict(float))
     for r in runs:
-        fixed = r["startup"] + r["config"] + r["build"] + r["write"]
+        fixed = fixed_part(r)
         loop = r["lap"] - r["controller"] - r["plant"]
         for name, value in (("fixed", fixed), ("plant Φ", r["plant"]),
                             ("controller step", r["controller"]), ("loop", loop)):  # fmt: skip
