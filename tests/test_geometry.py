@@ -194,3 +194,22 @@ def test_scalar_evaluation_of_a_reference_point_matches_the_arrays(track_dir) ->
     ref = ReferencePoints(s=s, speed=np.ones_like(s), path=path)
     for k in range(s.size):
         assert ref.at(k) == (ref.x[k], ref.y[k], ref.heading[k])
+
+
+@pytest.mark.parametrize("block", [1, 7, 64, 100_000])
+def test_projecting_many_points_gives_each_points_projection(track_dir, monkeypatch, block) -> None:
+    """``project_many`` (the NMPC's track lookup) against ``project`` point by point, whatever
+    its block size: random points near a real centre line and its vertices, where two
+    segments tie and the lower index must win."""
+    from cape.tracks import geometry
+
+    monkeypatch.setattr(geometry, "_kernel", None)
+    monkeypatch.setattr(geometry, "PROJECT_BLOCK", block)
+    path = load_track(track_dir, "ETHZMobil", "ethzMobil", 0.46).center
+    rng = np.random.default_rng(11)
+    points = path.position(rng.uniform(0, path.length, 200)) + rng.normal(0, 0.1, (2, 200))
+    points = np.hstack([points, np.vstack([path.x[:50], path.y[:50]])])
+    s, nearest = path.project_many(*points)
+    for k, (px, py) in enumerate(points.T):
+        proj = path.project(px, py)
+        assert (s[k], nearest[k, 0], nearest[k, 1]) == (proj.s, proj.x, proj.y)
