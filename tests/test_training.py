@@ -144,6 +144,28 @@ def test_adam_step_is_the_optimisers_step_bit_for_bit(config) -> None:
             assert torch.equal(state[0][key][name], state[1][key][name])
 
 
+def test_adam_step_updates_each_weight_with_its_own_gradient_whatever_the_layout() -> None:
+    """A gradient with its parameter's shape but transposed strides (as ``torch.autograd.grad``
+    returns the GRU's weight gradients): the update is the for-loop Adam's, element by element.
+    PyTorch's fused CPU kernel alone would read the gradient in memory order."""
+    generator = torch.Generator().manual_seed(2)
+    weights = [torch.randn(3, 5, generator=generator) for _ in range(3)]
+    params = [torch.nn.Parameter(w.clone()) for w in weights[:2]]
+    reference = [torch.nn.Parameter(w.clone()) for w in weights[:2]]
+    fast = AdamStep(torch.optim.Adam(params, lr=0.1, fused=True))
+    loop = torch.optim.Adam(reference, lr=0.1, foreach=False)
+    for _ in range(3):  # the first creates the state (the fallback), the others run fast
+        for p, r in zip(params, reference, strict=True):
+            grad = torch.randn(5, 3, generator=generator)
+            p.grad = grad.T  # shape (3, 5), strides (1, 3)
+            r.grad = grad.T.contiguous()
+        assert params[0].grad.stride() != params[0].stride()
+        fast()
+        loop.step()
+        for p, r in zip(params, reference, strict=True):
+            torch.testing.assert_close(p.detach(), r.detach(), rtol=1e-6, atol=1e-7)
+
+
 @pytest.mark.slow  # a cold-cache compile: about a minute on two cores
 def test_compiled_training_is_reproducible_and_follows_eager_training(
     config, small_data, tmp_path: Path

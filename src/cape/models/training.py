@@ -245,7 +245,14 @@ class AdamStep:
     the update is the same bit for bit (tests/test_training.py); the state stays the
     optimiser's own, so its ``state_dict`` (the resumable checkpoint) is unchanged. It falls
     back to ``optimiser.step()`` whenever it is not that case: another optimiser or options,
-    no state yet (the first step creates it), a parameter without a gradient."""
+    no state yet (the first step creates it), a parameter without a gradient.
+
+    A gradient laid out otherwise than its parameter (``torch.autograd.grad`` returns the GRU's
+    weight gradients transposed) is first copied into its parameter's layout: PyTorch 2.13's
+    fused Adam on the CPU, through ``optimiser.step()`` too, reads every gradient in memory
+    order and so updates each element with another element's gradient, without an error.
+    ``backward()`` lays the gradients out as their parameters (what the training passes), so
+    there this changes nothing."""
 
     def __init__(self, optimiser: torch.optim.Optimizer) -> None:
         self.optimiser = optimiser
@@ -268,6 +275,9 @@ class AdamStep:
         group = self.optimiser.param_groups[0]
         params: list[torch.Tensor] = group["params"]
         state = self.optimiser.state
+        for p in params:
+            if p.grad is not None and p.grad.stride() != p.stride():
+                p.grad = torch.empty_like(p).copy_(p.grad)
         grads = [p.grad for p in params]
         if not self._fast or any(g is None for g in grads) or any(p not in state for p in params):
             self.optimiser.step()
