@@ -84,11 +84,19 @@ def test_the_paper_study_must_be_a_study_of_the_grid(config) -> None:
     own = copy.deepcopy(config)  # a grid of one's own: no paper study, no scorecard
     own["study"]["paper"] = None
     own["study"]["studies"] = {"mine": {"plants": ["truth"], "controllers": ["pid"]}}
-    assert validate_config(own, "cfg.yaml")["study"]["paper"] is None  # real_car: unread
+    assert validate_config(own, "cfg.yaml")["study"]["paper"] is None  # ground_truth: unread
     car = copy.deepcopy(config)
-    car["study"]["real_car"] = "learned"  # not a ground-truth study
-    with pytest.raises(CapeError, match=r"`study.real_car` names 'learned'.*or set it to null"):
+    car["study"]["ground_truth"] = "learned"  # not a ground-truth study
+    with pytest.raises(CapeError, match=r"`study.ground_truth` names 'learned'.*or set it to null"):
         validate_config(car, "cfg.yaml")
+    old = copy.deepcopy(config)  # the key of earlier versions, refused with its new name
+    old["study"]["real_car"] = old["study"].pop("ground_truth")
+    with pytest.raises(CapeError, match=r"`study.real_car` was renamed `study.ground_truth`"):
+        validate_config(old, "cfg.yaml")
+    few = copy.deepcopy(config)  # a cap below the draws could never give them
+    few["training"]["max_trainings"] = few["training"]["replicates"] - 1
+    with pytest.raises(CapeError, match=r"`training.max_trainings` is 2, below"):
+        validate_config(few, "cfg.yaml")
     own["study"]["studies"]["bikes"] = {"kind": "bicycle", "plants": ["epm-fixed"],
                                         "controllers": ["pid"]}  # fmt: skip
     with pytest.raises(CapeError, match=r"`study.studies.bikes.kind` is bicycle"):

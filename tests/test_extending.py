@@ -166,8 +166,8 @@ def test_a_disturbance_source_added_by_config_alone_reaches_the_runs_and_table_3
 def test_a_model_added_by_its_module_and_entry_takes_its_place_in_table_9(tmp_path: Path) -> None:
     """The worked example of config/examples/ (EPM's network, DDM's physics), as a newcomer adds
     a model: its module in a folder of theirs and the overlay's entry, nothing else. Through the
-    real `snakemake`, table 9 places it in both studies (learned plants; the real car, inside
-    the adaptive NMPC) against the reference model, with its effect, verdict, open-loop RMSE
+    real `snakemake`, table 9 places it in both studies (learned plants; the ground-truth plant,
+    inside the adaptive NMPC) against the reference model, with its effect, verdict, open-loop RMSE
     and complexity; the reference is named as such."""
     import pandas as pd
 
@@ -190,7 +190,7 @@ def test_a_model_added_by_its_module_and_entry_takes_its_place_in_table_9(tmp_pa
     table = pd.read_csv(work / target)
     assert set(table["study"]) == {
         "learned plants (the paper's study)",
-        "real car (the ground-truth plant)",
+        "the ground-truth plant (the simulated true car)",
     }
     for _, rows in table.groupby("study"):
         rows = rows.set_index("model")

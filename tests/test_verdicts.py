@@ -325,29 +325,29 @@ def test_a_claim_the_study_cannot_evaluate_is_listed_with_why() -> None:
     assert f"## Not evaluated: {len(table)} of {len(table)} rows" in page
 
 
-def test_the_real_cars_rows_are_judged_the_same_way_beside_the_papers() -> None:
+def test_the_ground_truth_plants_rows_are_judged_the_same_way_beside_the_papers() -> None:
     """The ground-truth study's runs (each learned model inside the adaptive NMPC, the true
-    plant): CAPE's own rows, setting "real car", no paper value, the same interval over the
-    draws; EPM 1.0–1.2 s faster than DDM in every draw holds, and RESULTS.md opens with both
-    sets side by side."""
-    from cape.study.claims import REAL_CAR, REAL_CAR_CLAIMS
+    plant): CAPE's own rows, setting "ground-truth plant", no paper value, the same interval
+    over the draws; EPM 1.0–1.2 s faster than DDM in every draw holds, and RESULTS.md opens
+    with both sets side by side."""
+    from cape.study.claims import GROUND_TRUTH, GROUND_TRUTH_CLAIMS
     from cape.study.glance import at_a_glance
 
     car = _laps([0, 1, 2]).assign(study="truth", plant="truth")
-    adaptive = [c for c in REAL_CAR_CLAIMS if "adaptive" in c.name]
+    adaptive = [c for c in GROUND_TRUTH_CLAIMS if "adaptive" in c.name]
     table, _ = evaluate_claims(
         _laps([0, 1, 2]), pd.DataFrame(), {}, claims=[_claim(Pair("epm", "ddm", -1.0, "−1"))],
-        model_claims=[], bicycle=None, real_car=car, real_car_claims=adaptive,
+        model_claims=[], bicycle=None, ground_truth=car, ground_truth_claims=adaptive,
     )  # fmt: skip
-    own = table[table["setting"] == REAL_CAR].set_index("comparison")
+    own = table[table["setting"] == GROUND_TRUTH].set_index("comparison")
     assert list(own.index) == ["EPM − DDM", "EPM − DPM", "DDM − DPM"]
     assert own.loc["EPM − DDM", "verdict"] == HOLDS and own.loc["EPM − DDM", "draws"] == 3
     assert own.loc["EPM − DDM", "paper"].startswith("none (CAPE's own); tested: EPM < DDM")
     assert own.loc["EPM − DPM", "verdict"] == INCONCLUSIVE  # the draws disagree, as above
-    assert (table.loc[table["setting"] != REAL_CAR, "setting"] == "paper").all()
+    assert (table.loc[table["setting"] != GROUND_TRUTH, "setting"] == "paper").all()
     assert "setting" in presented(table)
     page = at_a_glance(table, _laps([0, 1, 2]))
     assert "| The paper's claims (learned plants; models; bicycle): 1 | 1 | 0 | 0 | 0 |" in page
-    assert "| On the real car: the ground-truth plant (CAPE's own): 3 | 1 | 0 | 2 | 0 |" in page
+    assert "| On the ground-truth plant (CAPE's own): 3 | 1 | 0 | 2 | 0 |" in page
     alone, _ = evaluate_claims(_laps([0]), pd.DataFrame(), {}, model_claims=[], bicycle=None)
     assert "setting" not in presented(alone)  # the paper's rows alone: no column to tell

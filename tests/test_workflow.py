@@ -294,7 +294,7 @@ def test_the_smoke_study_builds_every_table_figure_and_notebook(smoke_study: Pat
     assert per_draw | {"verdict (2 draws)", "verdict (draws that trained)", "draws needed"} <= set(
         table8
     )
-    papers = table8[table8["setting"] == "paper"]  # the real car's need the adaptive NMPC
+    papers = table8[table8["setting"] == "paper"]  # the ground-truth plant's need the adaptive NMPC
     assert set(papers["verdict (2 draws)"]) <= {"holds", "contradicted", "inconclusive"}
     glance = (work / "results/replicates/RESULTS.md").read_text()
     assert glance.index("## Holds over the training draws") < glance.index("## Runs")

@@ -61,6 +61,13 @@ def check_consistency(config: dict[str, Any], source: str = "config") -> None:
                 f"{source}: field `data.{key}` is {data[key]!r}, which is not one of "
                 f"`data.tracks` ({sorted(data['tracks'])}); choose one of those."
             )
+    training = config.get("training") or {}
+    cap = training.get("max_trainings")
+    if cap is not None and cap < int(training.get("replicates", 1)):
+        raise CapeError(
+            f"{source}: field `training.max_trainings` is {cap}, below `training.replicates` "
+            f"({training['replicates']}): a model could never have its draws; raise it or set null"
+        )
     _check_eta_labels(config, source)
     if "study" in config:
         _check_grid(config, source)
@@ -161,14 +168,14 @@ def _check_grid(config: dict[str, Any], source: str) -> None:
             f"{source}: field `study.reference_model` names {reference!r}, which the config "
             f"does not define; use one of {', '.join(config.get('models', {}))}"
         )
-    real_car = config["study"].get("real_car")
-    if real_car is not None and paper is not None:  # no paper's study: no scorecard to read it
-        grid = config["study"]["studies"].get(real_car)
+    ground_truth = config["study"].get("ground_truth")
+    if ground_truth is not None and paper is not None:  # no paper's study: no scorecard reads it
+        grid = config["study"]["studies"].get(ground_truth)
         if grid is None or list(grid.get("plants", [])) != ["truth"]:
             raise CapeError(
-                f"{source}: field `study.real_car` names {real_car!r}, which is not a study of "
-                "`study.studies` whose plants are [truth]; name the ground-truth study, or set "
-                "it to null for a scorecard without the real car's rows"
+                f"{source}: field `study.ground_truth` names {ground_truth!r}, which is not a "
+                "study of `study.studies` whose plants are [truth]; name the ground-truth study, "
+                "or set it to null for a scorecard without the ground-truth plant's rows"
             )
     if paper is None:
         for study, grid in config["study"]["studies"].items():
@@ -199,10 +206,26 @@ def _jsonschema() -> Any:
     return jsonschema
 
 
+RENAMED = {("study", "real_car"): "ground_truth"}
+"""Keys renamed: (section, old key) → new key. The ground-truth study runs the simulated car
+with its true parameters (SPEC §1), never hardware, so it is not called the real car."""
+
+
+def _refuse_renamed(config: dict[str, Any], source: str) -> None:
+    for (name, old), new in RENAMED.items():
+        entries = config.get(name)
+        if isinstance(entries, dict) and old in entries:
+            raise CapeError(
+                f"{source}: field `{name}.{old}` was renamed `{name}.{new}`; write "
+                f"`{new}: {entries[old]}` under `{name}` instead"
+            )
+
+
 def validate_config(config: dict[str, Any], source: str = "config") -> dict[str, Any]:
     """Validate ``config`` against the schema (filling defaults) and the cross-field rules."""
     import yaml
 
+    _refuse_renamed(config, source)
     jsonschema = _jsonschema()
     schema = yaml.safe_load(SCHEMA_PATH.read_text())
     _fill_defaults(config, schema)

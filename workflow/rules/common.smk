@@ -14,6 +14,7 @@ from cape.controllers import controller_class
 from cape.closedloop.disturbances import validate_sources
 from cape.controllers.base import validate_settings
 from cape.locks import clear_stale_locks
+from cape.models.draws import choose_training, default_max_trainings, read_outcome
 from cape.models.registry import model_class
 from cape.study.grid import RunId, canonical, check_grid_size, study_runs
 from cape.study.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS
@@ -68,6 +69,7 @@ wildcard_constraints:
     controller="|".join(sorted(config["controllers"])),
     eta=r"[0-9]+(\.[0-9]+)?",
     seed=r"[0-9]+",
+    training_seed=r"[0-9]+",
     replicate=r"[0-9]+",
     scope="|".join(SCOPES),
 
@@ -85,22 +87,61 @@ def config_json(*sections):
     """
     chosen = {name: config[name] for name in sections}
     if "training" in chosen:
-        chosen["training"] = {k: v for k, v in chosen["training"].items() if k != "replicates"}
+        chosen["training"] = {
+            k: v for k, v in chosen["training"].items() if k not in ("replicates", "max_trainings")
+        }
     return json.dumps(chosen, sort_keys=True)
 
 
 PRESENTATION_KEYS = ("label", "color")
 
 
-def training_seed(replicate):
-    """Replicate r of every model trains with seed ``training.seed + r`` (SPEC §4)."""
-    return int(config["training"]["seed"]) + int(replicate)
+def training_seed(k):
+    """A model's k-th training has seed ``training.seed + k`` (SPEC §4)."""
+    return int(config["training"]["seed"]) + int(k)
 
 
-def model_config_json(model, replicate):
-    """What training reads: the model's own entry (less its label and colour), the replicate's
+# A model's trainings, by seed; its draws are made from them (cape.models.draws)
+TRAINING_FOLDER = "results/trainings/{model}/seed{training_seed}"
+MAX_TRAININGS = int(config["training"].get("max_trainings") or default_max_trainings(REPLICATES))
+
+
+def training_dir(model, seed):
+    return TRAINING_FOLDER.format(model=model, training_seed=seed)
+
+
+def health_config_json():
+    """What a training's health check reads: the split and the checks' settings."""
+    return json.dumps(
+        {"data": {"split": config["data"]["split"]}, "training": {"health": config["training"]["health"]}},
+        sort_keys=True,
+    )
+
+
+def draw_inputs(wildcards):
+    """The trainings draw r of a model is chosen among, asked for in the order of
+    cape.models.draws (a training not yet checked is planned, and the draw waits for it):
+    the chosen one's files and every consulted training's health record."""
+    model = wildcards.model
+
+    def outcome(k):
+        path = checkpoints.training_health.get(model=model, training_seed=training_seed(k)).output[0]
+        return read_outcome(path)
+
+    choice = choose_training(int(wildcards.replicate), MAX_TRAININGS, outcome)
+    chosen = training_dir(model, choice.consulted[choice.index].seed)
+    return {
+        "health": [f"{training_dir(model, o.seed)}/health.json" for o in choice.consulted],
+        "weights": f"{chosen}/model.pt",
+        "meta": f"{chosen}/meta.json",
+        "losses": f"{chosen}/loss.csv",
+    }
+
+
+def model_config_json(model, seed):
+    """What training reads: the model's own entry (less its label and colour), the training's
     seed, threads and kernels, the sampling time and the split. Nothing else, so that unrelated
-    config edits never retrain a model (replicate 0's is what a single-draw study passed)."""
+    config edits never retrain a model."""
     spec = {k: v for k, v in config["models"][model].items() if k not in PRESENTATION_KEYS}
     training = {k: config["training"][k] for k in ("threads", "fused_adam", "compile")}
     kernels = {k: v for k, v in config["training"].get("kernels", {}).items() if v is not None}
@@ -109,7 +150,7 @@ def model_config_json(model, replicate):
     return json.dumps(
         {
             "models": {model: spec},
-            "training": {**training, "seed": training_seed(replicate)},
+            "training": {**training, "seed": int(seed)},
             "data": {k: config["data"][k] for k in ("ts", "split")},
         },
         sort_keys=True,
@@ -390,7 +431,7 @@ def model_outputs(replicates):
     files = []
     for r in replicates:
         for m in MODELS:
-            for stage in ("train", "freeze", "export_network"):
+            for stage in ("draw", "freeze", "export_network"):
                 files += job_outputs(stage, model=m, replicate=r)
         files += job_outputs("openloop_table", replicate=r) + job_outputs("complexity_table", replicate=r)
     return files

@@ -1,15 +1,18 @@
-# The learned models (SPEC §4): one training job per model and training replicate.
+# The learned models (SPEC §4): trainings per model and training seed, each checked; a
+# model's draws are its trainings that work.
 
 
 rule train:
+    """One training of a model: its k-th has seed training.seed + k (SPEC §4). Whether it
+    works is its health check's; which trainings become draws, the draw rule's."""
     input:
         data=dataset_path(config["data"]["train_track"]),
     output:
-        weights="results/models/rep{replicate}/{model}/model.pt",
-        meta="results/models/rep{replicate}/{model}/meta.json",
-        losses="results/models/rep{replicate}/{model}/loss.csv",
+        weights=f"{TRAINING_FOLDER}/model.pt",
+        meta=f"{TRAINING_FOLDER}/meta.json",
+        losses=f"{TRAINING_FOLDER}/loss.csv",
     params:
-        cfg=lambda wildcards: model_config_json(wildcards.model, int(wildcards.replicate)),
+        cfg=lambda wildcards: model_config_json(wildcards.model, int(wildcards.training_seed)),
         out=lambda wildcards, output: os.path.dirname(output.weights),
     threads: config["training"]["threads"]
     # the longest training first (EPM's 3000 epochs are the study's critical path), and every
@@ -23,14 +26,62 @@ rule train:
     conda:
         CAPE_ENV
     log:
-        "results/logs/train/rep{replicate}/{model}.log",
+        "results/logs/train/{model}/seed{training_seed}.log",
     benchmark:
-        "results/benchmarks/train/rep{replicate}/{model}.tsv"
+        "results/benchmarks/train/{model}/seed{training_seed}.tsv"
     shell:
-        "cape train --model {wildcards.model} --replicate {wildcards.replicate}"
+        "cape train --model {wildcards.model} --seed {wildcards.training_seed}"
         " --data {input.data:q} --out {params.out:q}"
         " --threads {threads} --checkpoint-every {resources.checkpoint_every}"
         " --config-json {params.cfg:q} > {log:q} 2>&1"
+
+
+checkpoint training_health:
+    """Did a training work? The checks on the training alone (SPEC §4.2's bar, the stalled
+    loss): a checkpoint, since which trainings a model needs depends on them."""
+    input:
+        weights=f"{TRAINING_FOLDER}/model.pt",
+        meta=f"{TRAINING_FOLDER}/meta.json",
+        losses=f"{TRAINING_FOLDER}/loss.csv",
+        data=dataset_path(config["data"]["train_track"]),
+    output:
+        f"{TRAINING_FOLDER}/health.json",
+    params:
+        cfg=lambda wildcards: health_config_json(),
+        folder=lambda wildcards, input: os.path.dirname(input.weights),
+    conda:
+        CAPE_ENV
+    log:
+        "results/logs/health/{model}/seed{training_seed}.log",
+    shell:
+        "cape check-training --model {wildcards.model}={params.folder:q} --data {input.data:q}"
+        " --out {output:q} --config-json {params.cfg:q} > {log:q} 2>&1"
+
+
+rule draw:
+    """Draw r of a model: its (r + 1)-th training that works, in seed order, up to
+    training.max_trainings (SPEC §4); the draw's folder is what every later rule reads."""
+    input:
+        unpack(draw_inputs),
+    output:
+        weights="results/models/rep{replicate}/{model}/model.pt",
+        meta="results/models/rep{replicate}/{model}/meta.json",
+        losses="results/models/rep{replicate}/{model}/loss.csv",
+    localrule: True
+    params:
+        # (no `health` while a checkpoint is pending: the job is planned again once it is done)
+        trainings=lambda wildcards, input: " ".join(
+            f"--training {shlex.quote(os.path.dirname(h))}" for h in getattr(input, "health", [])
+        ),
+        out=lambda wildcards, output: os.path.dirname(output.weights),
+        cap=MAX_TRAININGS,
+    conda:
+        CAPE_ENV
+    log:
+        "results/logs/draw/rep{replicate}/{model}.log",
+    shell:
+        "cape draw --model {wildcards.model} --replicate {wildcards.replicate} {params.trainings}"
+        " --max-trainings {params.cap} --out {params.out:q} > {log:q} 2>&1"
 
 
 rule freeze:

@@ -57,8 +57,8 @@ def _train_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--replicate",
         type=int,
-        default=0,
-        help="the training replicate this is (SPEC §4; meta.json: a run refuses another's)",
+        help="the draw this training is (SPEC §4; meta.json: a run refuses another's); the "
+        "workflow's trainings have none: `cape draw` makes a draw of one",
     )
     p.add_argument("--threads", type=int, help="override training.threads")
     p.add_argument(
@@ -195,7 +195,7 @@ def cmd_train(args: argparse.Namespace) -> None:
     )
 
 
-def _check_model_folder(out: Path, model: str, replicate: int) -> None:
+def _check_model_folder(out: Path, model: str, replicate: int | None) -> None:
     """``cape train`` replaces a model folder's ``model.pt``, ``meta.json`` and ``loss.csv``
     only if they are the same model CAPE wrote (its ``meta.json`` readable, naming ``model``
     and ``replicate``): never a user's files of the same names, never another model's or
@@ -221,6 +221,139 @@ def _check_model_folder(out: Path, model: str, replicate: int) -> None:
             f"changed. Train it into its own folder (results/models/rep{replicate}/{model}), or "
             "delete that folder first"
         )
+
+
+def _check_training_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--model", required=True, metavar="NAME=DIR", help="a trained model's folder")
+    p.add_argument(
+        "--data", required=True, help="training data set (.npz), for its validation split"
+    )
+    p.add_argument("--out", required=True, help="the health record (.json)")
+    _add_config_args(p)
+
+
+@command(
+    "check-training",
+    "did a training work? the checks on the training alone (SPEC §4): its health.json",
+    _check_training_arguments,
+)
+def cmd_check_training(args: argparse.Namespace) -> None:
+    import json
+
+    from cape.config import section
+    from cape.io import read_csv, write_text
+    from cape.models.evaluate import one_step_rmse
+    from cape.models.health import training_outcome
+    from cape.models.trained import read_meta
+    from cape.models.training import TrainingData
+
+    if Path(args.out).suffix != ".json":
+        raise CapeError(f"--out {args.out}: a health record is a .json file")
+    config = _config(args)
+    ((name, model),) = _load_models([args.model]).items()
+    folder = Path(args.model.partition("=")[2])
+    meta = read_meta(folder)
+    split = section(config, "data")["split"]
+    data = TrainingData.from_dataset(
+        _load_npz(args.data), model.history, float(split["train_fraction"]), int(split["seed"])
+    )
+    losses = read_csv(
+        folder / "loss.csv",
+        "train the model first (snakemake does)",
+        "not a loss curve ({reason}); delete the model folder and train again",
+    )
+    if "train_loss" not in losses:
+        raise CapeError(f"{folder / 'loss.csv'}: has no train_loss column; train the model again")
+    outcome = training_outcome(
+        name,
+        int(meta["seed"]),
+        one_step_rmse(model, data.val),
+        losses["train_loss"].tolist(),
+        section(config, "training")["health"],
+        str(meta["weights_sha256"]),
+    )
+    write_text(args.out, json.dumps(outcome.to_dict(), indent=2, sort_keys=True) + "\n")
+    said = "trained" if outcome.trained else "failed: " + "; ".join(outcome.reasons)
+    print(f"{name} seed {outcome.seed}: {said}")
+
+
+def _draw_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--model", required=True, help="model name from the config's `models`")
+    p.add_argument("--replicate", required=True, type=int, help="the draw (0, 1, …)")
+    p.add_argument(
+        "--training",
+        action="append",
+        required=True,
+        metavar="DIR",
+        help="the model's trainings in seed order, each with its health.json (repeat)",
+    )
+    p.add_argument(
+        "--max-trainings", required=True, type=int, help="training.max_trainings (the cap)"
+    )
+    p.add_argument("--out", required=True, help="the draw's model folder")
+
+
+@command(
+    "draw",
+    "make draw r of a model from its (r + 1)-th training that works (SPEC §4)",
+    _draw_arguments,
+)
+def cmd_draw(args: argparse.Namespace) -> None:
+    import hashlib
+    import json
+
+    from cape.io import write_files
+    from cape.models.draws import Outcome, choose_training, read_outcome
+    from cape.models.trained import read_meta
+
+    if args.replicate < 0 or args.max_trainings < 1:
+        raise CapeError("--replicate is at least 0 and --max-trainings at least 1")
+    trainings = [Path(t) for t in args.training]
+
+    def outcome(k: int) -> Outcome:
+        if k >= len(trainings):
+            raise CapeError(
+                f"draw {args.replicate} of {args.model} needs training {k}'s health, but only "
+                f"{len(trainings)} --training folders were given"
+            )
+        return read_outcome(trainings[k] / "health.json")
+
+    choice = choose_training(args.replicate, args.max_trainings, outcome)
+    source = trainings[choice.index]
+    meta = read_meta(source)
+    weights = (source / "model.pt").read_bytes()
+    digest = hashlib.sha256(weights).hexdigest()
+    health = choice.consulted[choice.index]
+    if meta.get("name") != args.model or digest != meta.get("weights_sha256"):
+        raise CapeError(
+            f"{source}: holds no {args.model} training whose weights match its meta.json"
+        )
+    if health.weights_sha256 != digest:
+        raise CapeError(
+            f"{source}/health.json: is about other weights than {source}/model.pt; delete it "
+            "and rerun snakemake"
+        )
+    out = Path(args.out)
+    _check_model_folder(out, args.model, args.replicate)
+    meta["replicate"] = args.replicate
+    meta["draw"] = {
+        "training": str(source),
+        "index": choice.index,
+        "trained": choice.trained,
+        "cap_reached": choice.cap_reached,
+        "max_trainings": args.max_trainings,
+        "trainings": [o.to_dict() for o in choice.consulted],
+    }
+    write_files({
+        out / "model.pt": weights,
+        out / "loss.csv": (source / "loss.csv").read_bytes(),
+        out / "meta.json": (json.dumps(meta, indent=2, sort_keys=True) + "\n").encode(),
+    })  # fmt: skip
+    said = "trained" if choice.trained else "failed (the cap was reached)"
+    print(
+        f"{args.model} draw {args.replicate}: training {choice.index} (seed {health.seed}), "
+        f"{said}; {len(choice.consulted)} trainings consulted"
+    )
 
 
 def _freeze_arguments(p: argparse.ArgumentParser) -> None:

@@ -20,6 +20,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from cape.models.draws import Outcome
+
 STATES = ("vx", "vy", "omega")
 
 
@@ -120,5 +122,130 @@ def over_replicates(
             row["failed replicates"] = ", ".join(
                 str(r) for r in mine[~mine["trained"]]["replicate"]
             )
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def training_outcome(
+    model: str,
+    seed: int,
+    val_rmse: Mapping[str, float],
+    train_loss: Sequence[float],
+    settings: Mapping[str, Any],
+    weights_sha256: str,
+) -> Outcome:
+    """One training's health record (cape.models.draws): the checks on the training alone,
+    the bar and the stalled loss; the outlier check compares draws and is not one of them."""
+    reasons = training_checks(model, val_rmse, train_loss, settings)
+    rmse = {s: float(val_rmse[s]) for s in STATES}
+    return Outcome(int(seed), not reasons, tuple(reasons), rmse, weights_sha256)
+
+
+def draw_health(metas: Mapping[tuple[int, str], Mapping[str, Any]], factor: float) -> pd.DataFrame:
+    """One row per (replicate, model) draw: ``trained`` and the ``reason`` it did not (its
+    training's health, recorded by ``cape draw`` in meta.json), its training's seed, and the
+    outlier check beside (``outlier``: a best validation loss far above the model's draws';
+    reported, never a reason to retrain). ``metas``: (replicate, model) → the draw's meta.json."""
+    rows = []
+    for (replicate, model), meta in sorted(metas.items()):
+        draw = meta.get("draw") or {}
+        chosen = (draw.get("trainings") or [{}])[int(draw.get("index", 0))] if draw else {}
+        trained = bool(draw.get("trained", True))
+        rows.append({
+            "replicate": int(replicate),
+            "model": str(model),
+            "seed": int(meta.get("seed", -1)),
+            "trained": trained,
+            "reason": "; ".join(chosen.get("reasons", [])) if not trained else "",
+            "outlier": "",
+        })  # fmt: skip
+    frame = pd.DataFrame(
+        rows, columns=["replicate", "model", "seed", "trained", "reason", "outlier"]
+    )
+    for model in frame["model"].unique():
+        best = {r: float(meta["best_val_loss"]) for (r, m), meta in metas.items() if m == model}
+        for replicate, reason in outliers(best, factor).items():
+            mask = (frame["model"] == model) & (frame["replicate"] == replicate)
+            frame.loc[mask, "outlier"] = reason
+    return frame
+
+
+def failed_draws(health: pd.DataFrame) -> dict[int, dict[str, str]]:
+    """Replicate → model → reason, for the draws whose training failed (the cap reached)."""
+    out: dict[int, dict[str, str]] = {}
+    for row in health[~health["trained"]].itertuples(index=False):
+        out.setdefault(int(row.replicate), {})[str(row.model)] = str(row.reason)
+    return out
+
+
+def trainings_tried(metas: Mapping[tuple[int, str], Mapping[str, Any]]) -> pd.DataFrame:
+    """Every training a model's draws were chosen among, once (the union of the draws'
+    records): model, seed, trained, the draw it became (-1: none), its ETHZ validation RMSE
+    and the reasons it failed."""
+    seen: dict[tuple[str, int], dict[str, Any]] = {}
+    draw_of: dict[tuple[str, int], int] = {}
+    for (replicate, model), meta in metas.items():
+        draw = meta.get("draw")
+        if not draw:  # a model folder made before draws: its one training, as it is
+            continue
+        for record in draw.get("trainings", []):
+            seen[(str(model), int(record["seed"]))] = record
+        draw_of[(str(model), int(meta["seed"]))] = int(replicate)
+    rows = []
+    for (model, seed), record in sorted(seen.items()):
+        rmse = record.get("val_rmse", {})
+        rows.append({
+            "model": model,
+            "seed": seed,
+            "trained": bool(record["trained"]),
+            "draw": draw_of.get((model, seed), -1),
+            **{f"val_rmse_{s}": float(rmse.get(s, np.nan)) for s in STATES},
+            "reasons": "; ".join(record.get("reasons", [])),
+        })  # fmt: skip
+    columns = ["model", "seed", "trained", "draw", *(f"val_rmse_{s}" for s in STATES), "reasons"]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def reliability_table(
+    trainings: pd.DataFrame,
+    settings: Mapping[str, Any],
+    draws: int,
+    max_trainings: int,
+    factors: Sequence[float] = (0.5, 1.0, 2.0),
+) -> pd.DataFrame:
+    """Per model: trainings tried, failed, the failure rate with its 95 % Clopper–Pearson
+    interval, trained draws against ``draws`` (and whether the cap was reached), and how many
+    trainings would pass the ETHZ validation bar scaled by each of ``factors`` (the bar
+    applies to the models ``settings['models']`` names; others: empty)."""
+    from cape.models.draws import reliability
+
+    bar = settings["val_rmse_max"]
+    rows = []
+    for model, group in trainings.groupby("model", sort=False):
+        outcomes = [
+            Outcome(int(r.seed), bool(r.trained), tuple(filter(None, [r.reasons])))
+            for r in group.itertuples(index=False)
+        ]
+        rel = reliability(outcomes)
+        trained = int(group["trained"].sum())
+        row: dict[str, Any] = {
+            "model": model,
+            "trainings tried": rel.tried,
+            "failed": rel.failed,
+            "failure rate": rel.rate,
+            "ci95_low": rel.low,
+            "ci95_high": rel.high,
+            "trained draws": f"{min(trained, draws)} of {draws}",
+            "cap reached": trained < draws and rel.tried >= max_trainings,
+        }
+        for factor in factors:
+            name = f"pass at {factor:g}× bar"
+            if model in settings.get("models", ()):
+                ok = np.ones(len(group), dtype=bool)
+                for s in STATES:
+                    ok &= group[f"val_rmse_{s}"].to_numpy(dtype=float) < factor * float(bar[s])
+                row[name] = f"{int(ok.sum())} of {len(group)}"
+            else:
+                row[name] = "no bar"
         rows.append(row)
     return pd.DataFrame(rows)

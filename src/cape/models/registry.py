@@ -11,3 +11,12 @@ MODELS: Registry[Any] = Registry(
 )
 register_model = MODELS.register
 model_class = MODELS.get
+
+
+def build_physics(name: str, spec: dict[str, Any], ts: float) -> Any:
+    """The physics of config entry ``name``: its class (``spec['type']`` or ``name``) built
+    with ``spec``; an entry that reuses another's class (``ddm_tuned: {type: ddm}``) keeps its
+    own name, so its trainings, draws and runs are its own."""
+    physics = model_class(name, spec)(spec, ts)
+    physics.name = name
+    return physics

@@ -17,7 +17,7 @@ import numpy as np
 from cape.errors import CapeError
 from cape.io import read_csv
 from cape.models.physics import ModelPhysics
-from cape.models.registry import model_class
+from cape.models.registry import build_physics
 
 FORMAT_VERSION = 1
 """Version of ``meta.json``'s layout."""
@@ -120,7 +120,7 @@ def load_physics(
     name = meta["name"]
     if expected_name is not None and name != expected_name:
         raise CapeError(f"{folder}: holds model {name!r}, expected {expected_name!r}")
-    return model_class(name, meta["spec"])(meta["spec"], meta["ts"])
+    return build_physics(name, meta["spec"], meta["ts"])
 
 
 def load_trained(

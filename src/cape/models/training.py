@@ -26,7 +26,7 @@ from cape.data.windows import StandardScaler, WindowSet, make_windows, split_ind
 from cape.errors import CapeError
 from cape.io import write_bytes
 from cape.models.base import LearnedModel
-from cape.models.registry import model_class
+from cape.models.registry import build_physics
 
 TRAINING_STEP = 2
 """Version of the training step's arithmetic (1: issue 15's, the batch loss eager around a
@@ -122,7 +122,7 @@ def training_fingerprint(**what: Any) -> str:
 def build_model(name: str, spec: dict[str, Any], ts: float, seed: int) -> LearnedModel:
     """A freshly initialised model; the seed fixes its initial weights."""
     torch.manual_seed(seed)
-    return LearnedModel(model_class(name, spec)(spec, ts))
+    return LearnedModel(build_physics(name, spec, ts))
 
 
 def train_model(

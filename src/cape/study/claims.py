@@ -78,12 +78,13 @@ class ClosedLoopClaim:
     per_seed: str = "mean"
     causes: tuple[Cause, ...] = ()
     setting: str = "paper"
-    """Whose runs it reads: ``"paper"`` (the paper's study, ``study.paper``) or ``"real car"``
-    (the ground-truth study, ``study.real_car``: CAPE's own claims, no paper value)."""
+    """Whose runs it reads: ``"paper"`` (the paper's study, ``study.paper``) or
+    ``"ground-truth plant"`` (the ground-truth study, ``study.ground_truth``: the simulated car
+    with its true parameters, SPEC §1; CAPE's own claims, no paper value)."""
 
 
 PAPER_SETTING = "paper"
-REAL_CAR = "real car"
+GROUND_TRUTH = "ground-truth plant"
 
 
 @dataclass(frozen=True)
@@ -173,7 +174,7 @@ def both(first: Selection, second: Selection) -> Selection:
 
 def own(pairs: tuple[Pair, ...], unit: str = "") -> tuple[Pair, ...]:
     """The same comparisons as CAPE's own question: no paper value; the side tested is the
-    paper's on its learned plants (does its ordering carry over to the real car?)."""
+    paper's on its learned plants (does its ordering carry over to the ground-truth plant?)."""
     return tuple(
         Pair(
             p.a,
@@ -283,19 +284,21 @@ CLOSED_LOOP: tuple[ClosedLoopClaim, ...] = (
 )
 """The paper's closed-loop claims (SPEC §10) on its main study."""
 
-REAL_CAR_CLAIMS: tuple[ClosedLoopClaim, ...] = (
+GROUND_TRUTH_CLAIMS: tuple[ClosedLoopClaim, ...] = (
     ClosedLoopClaim(
-        "real car: adaptive NMPC lap time, penalised, mean over η (s), by its internal model",
+        "ground-truth plant: adaptive NMPC lap time, penalised, mean over η (s), by its internal "
+        "model",
         controllers(["anmpc"]),
         "lap_time_penalised",
         own(ordering(paper.ADAPTIVE_LAP_TIME, " s")),
         unit=" s",
         causes=(lap_time_bound,),
-        setting=REAL_CAR,
+        setting=GROUND_TRUTH,
     ),
     *(
         ClosedLoopClaim(
-            f"real car: η = 1, mean over the NMPCs: {metric} (%), by their internal model",
+            f"ground-truth plant: η = 1, mean over the NMPCs: {metric} (%), by their internal "
+            "model",
             both(at_eta(1.0), controllers(NMPCS)),
             metric,
             own(
@@ -306,20 +309,20 @@ REAL_CAR_CLAIMS: tuple[ClosedLoopClaim, ...] = (
             ),
             effect=RELATIVE,
             unit=" %",
-            setting=REAL_CAR,
+            setting=GROUND_TRUTH,
         )
         for metric, anchors in paper.ETA1_RELATIVE.items()
     ),
     ClosedLoopClaim(
-        "real car: NMPC-family failures of {cells} runs, by their internal model",
+        "ground-truth plant: NMPC-family failures of {cells} runs, by their internal model",
         controllers(NMPCS),
         FAILURES,
         own(ordering({m: paper.NMPC_FAILURES[m] for m in ("epm", "ddm", "dpm")})),
         per_seed="sum",
-        setting=REAL_CAR,
+        setting=GROUND_TRUTH,
     ),
 )
-"""CAPE's own claims (issue: which model drives the real car best): the paper's comparisons
+"""CAPE's own claims (which model drives the ground-truth plant best): the paper's comparisons
 on the ground-truth plant, each learned model as the NMPCs' internal model; EPM against DDM and
 DPM, and DDM against DPM."""
 

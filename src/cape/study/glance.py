@@ -11,7 +11,7 @@ from collections.abc import Sequence
 
 import pandas as pd
 
-from cape.study.claims import REAL_CAR
+from cape.study.claims import GROUND_TRUTH
 from cape.study.scorecard import NOT_EVALUATED, draws_of, holds_for_every_network, presented
 from cape.study.tables import plant_failures
 from cape.study.verdicts import CONTRADICTED, HOLDS, INCONCLUSIVE
@@ -32,12 +32,12 @@ def _bullets(table: pd.DataFrame, mask: pd.Series, needed: bool = False) -> list
 
 def _two_settings(table: pd.DataFrame) -> list[str]:
     """Side by side: what holds on the learned plants (the paper's setting: its claims, with
-    the model and bicycle rows) and what holds on the real car (the ground-truth plant, CAPE's
-    own rows, when the scorecard has them)."""
+    the model and bicycle rows) and what holds on the ground-truth plant (the simulated car
+    with its true parameters, CAPE's own rows, when the scorecard has them)."""
     setting = table["setting"] if "setting" in table else pd.Series("paper", index=table.index)
     sets = [("paper", "The paper's claims (learned plants; models; bicycle)")]
-    if setting.eq(REAL_CAR).any():
-        sets.append((REAL_CAR, "On the real car: the ground-truth plant (CAPE's own)"))
+    if setting.eq(GROUND_TRUTH).any():
+        sets.append((GROUND_TRUTH, "On the ground-truth plant (CAPE's own)"))
     kinds = (HOLDS, CONTRADICTED, INCONCLUSIVE, NOT_EVALUATED)
     lines = ["| rows | " + " | ".join(kinds) + " |", "|---" * (len(kinds) + 1) + "|"]
     for key, label in sets:
@@ -47,9 +47,10 @@ def _two_settings(table: pd.DataFrame) -> list[str]:
     if len(sets) > 1:
         lines += [
             "",
-            "On the real car each learned model is the NMPCs' internal model and the plant is the "
-            "ground truth: a row there holds when the paper's ordering carries over to the car "
-            "(no paper value; the interval says which way and how much).",
+            "On the ground-truth plant (the simulated car with its true parameters, SPEC §1) each "
+            "learned model is the NMPCs' internal model: a row there holds when the paper's "
+            "ordering carries over to that plant (no paper value; the interval says which way "
+            "and how much).",
         ]
     return lines
 

@@ -76,3 +76,13 @@ def read_trainings(
             losses[(r, m)], meta = read_training(Path(model_root, f"rep{r}", m))
             best[(r, m)] = float(meta["best_val_loss"])
     return losses, best
+
+
+def read_draws(
+    model_root: str, replicates: Sequence[int], models: Sequence[str]
+) -> dict[tuple[int, str], dict]:
+    """(replicate, model) → the draw's meta.json (its training, its health and the trainings
+    it was chosen among: ``cape draw``), for cape.models.health's tables."""
+    from cape.models.trained import read_meta
+
+    return {(r, m): read_meta(Path(model_root, f"rep{r}", m)) for r in replicates for m in models}

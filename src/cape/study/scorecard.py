@@ -9,9 +9,12 @@ draws whose trainings did not fail, and for a row left undecided the draws per m
 decide it (``draws needed``). With one draw (the default target) the verdict is about that
 draw's networks, and the table says so (``presented``).
 
-Internal columns: ``claim``, ``comparison``, ``paper``, ``ours``, ``ci95_low``,
-``ci95_high``, ``estimate``, ``draws``, ``effect rep<r>``, ``verdict rep<r>``, ``verdict``,
-``verdict trained``, ``draws needed``, ``why``.
+Internal columns: ``setting``, ``claim``, ``comparison``, ``paper``, ``ours``, ``ci95_low``,
+``ci95_high``, ``estimate``, ``draws``, ``p``, ``effect rep<r>``, ``verdict rep<r>``,
+``verdict`` (over the draws that trained: the headline), ``verdict FDR`` (the same, adjusted
+for the false-discovery rate over the setting's rows), ``verdict all draws`` (failed
+trainings included), ``draws needed``, ``why``. A row from one value or values that do not
+vary is inconclusive unless it is exact (cape.study.verdicts).
 """
 
 from __future__ import annotations
@@ -28,10 +31,10 @@ from cape.study.claims import (
     BICYCLE,
     CLOSED_LOOP,
     FAILURES,
+    GROUND_TRUTH,
+    GROUND_TRUTH_CLAIMS,
     MODEL,
     PAPER_SETTING,
-    REAL_CAR,
-    REAL_CAR_CLAIMS,
     BicycleClaim,
     ClosedLoopClaim,
     Context,
@@ -47,6 +50,7 @@ from cape.study.verdicts import (
     draw_effects,
     draws_needed,
     exact_verdict,
+    fdr_verdicts,
     interval,
     verdict,
 )
@@ -122,11 +126,6 @@ def _pair_effects(
     return out
 
 
-def _mean_of(per: Mapping[tuple[str, int], pd.Series], model: str) -> float:
-    values = [float(s.mean()) for (m, _), s in per.items() if m == model]
-    return float(np.mean(values)) if values else math.nan
-
-
 def _both(pair: Pair, a: float, b: float) -> str:
     """The two models' own values, as ``ours`` prints them beside the effect."""
     return f"{pair.a.upper()} {a:.3g}, {pair.b.upper()} {b:.3g}"
@@ -140,28 +139,40 @@ def _trained(context: Context, pair: Pair, replicates: Sequence[int]) -> list[in
 
 
 def _failed_note(context: Context, pair: Pair) -> str:
-    """The failed trainings among the pair's models (their reasons: table 4, RESULTS.md)."""
+    """The pair's draws whose trainings failed (a model that reached training.max_trainings
+    with fewer trained draws than the study has: its failed trainings stand in, flagged)."""
     notes = []
     for m in (pair.a, pair.b):
         reps = sorted(r for r, failed in context.failed.items() if m in failed)
         if reps:
-            notes.append(f"{m.upper()} replicate {', '.join(map(str, reps))}")
-    return f"training failed: {'; '.join(notes)}" if notes else ""
+            notes.append(f"{m.upper()} draw {', '.join(map(str, reps))}")
+    if not notes:
+        return ""
+    return (
+        f"training failed and reached the cap: {'; '.join(notes)} (left out of the verdict, "
+        "kept in `verdict all draws`)"
+    )
 
 
 def _verdicts(
     ev: _Evaluation, effects: Effects, pair: Pair
 ) -> tuple[dict[str, Any], dict[str, Interval]]:
-    """The row's interval and verdicts: over the draws (or this draw's seeds), per draw, over
-    the draws that trained, and the draws needed when undecided."""
+    """The row's interval and verdicts: the headline over the draws that trained (or this
+    draw's seeds), per draw over its seeds, over every draw (failed trainings included), and
+    the draws needed when undecided."""
     sign = float(np.sign(pair.paper_effect))
-    pooled = interval(effects, LEVEL)
-    spans = {"pooled": pooled}
+    kept = {r: effects[r] for r in _trained(ev.context, pair, ev.replicates) if r in effects}
+    headline = interval(kept, LEVEL)
+    every = interval(effects, LEVEL)
+    spans = {"pooled": headline}
     row: dict[str, Any] = {
-        "ci95_low": pooled.low,
-        "ci95_high": pooled.high,
-        "estimate": pooled.estimate,
-        "draws": pooled.replicates,
+        "ci95_low": headline.low,
+        "ci95_high": headline.high,
+        "estimate": headline.estimate,
+        "draws": headline.replicates,
+        "p": headline.p,
+        "_draws": sorted(r for r in kept if draw_effects({r: kept[r]})),
+        "_evidence": headline.why,
     }
     means = draw_effects(effects)
     for r in ev.replicates:
@@ -170,29 +181,42 @@ def _verdicts(
         row[f"verdict rep{r}"] = INCONCLUSIVE if span is None else verdict(span, sign)
         if span is not None:
             spans[f"rep{r}"] = span
-    row["verdict"] = verdict(pooled, sign)
-    kept = {r: effects[r] for r in _trained(ev.context, pair, ev.replicates) if r in effects}
-    enough = len(kept) >= min(2, len(ev.replicates))  # a class verdict needs two draws
-    row["verdict trained"] = (
-        verdict(interval(kept, LEVEL), sign) if kept and enough else INCONCLUSIVE
-    )
+    row["verdict"] = verdict(headline, sign)
+    row["verdict all draws"] = verdict(every, sign)
     undecided = row["verdict"] == INCONCLUSIVE
     settings = ev.settings
     row["draws needed"] = (
-        draws_needed(pooled, LEVEL, settings.power, settings.most_draws) if undecided else ""
+        draws_needed(headline, LEVEL, settings.power, settings.most_draws) if undecided else ""
     )
     return row, spans
 
 
 def _why(ev: _Evaluation, row: Mapping[str, Any], pair: Pair, causes: Sequence[str]) -> str:
-    """The measured cause of a row that does not hold: how the draws' verdicts stand, the
-    claim's own causes and the failed trainings involved."""
+    """The measured cause of a row that does not hold: too little evidence, how the draws'
+    verdicts stand, the claim's own causes and the failed trainings involved; and, for any
+    row, how many of the study's draws it rests on when fewer than all."""
+    used = row.get("_draws", [])
+    fewer = (
+        f"rests on {len(used)} of the study's {len(ev.replicates)} draws"
+        if len(ev.replicates) > 1 and len(used) < len(ev.replicates)
+        else ""
+    )
     if row["verdict"] == HOLDS:
-        return ""
-    notes = [c for c in (*causes, _failed_note(ev.context, pair)) if c]
+        return fewer
+    notes = [c for c in (fewer, *causes, _failed_note(ev.context, pair)) if c]
     per = [row.get(f"verdict rep{r}", INCONCLUSIVE) for r in ev.replicates]
-    if row["verdict"] == INCONCLUSIVE and row["ci95_low"] == row["ci95_high"] == 0:
-        cause = "a tie: no difference in any draw or seed"
+    evidence = row.get("_evidence", "")
+    if row["verdict"] == INCONCLUSIVE and evidence:
+        tie = row["ci95_low"] == row["ci95_high"] == 0
+        cause = (
+            f"{evidence}: a tie in every draw and seed"
+            if tie
+            else f"{evidence}: no spread, no verdict"
+        )
+        if evidence == "one value":
+            cause = "one value: no spread, no verdict"
+        if evidence == "no values":
+            cause = "no draw that trained has a value"
     elif row["verdict"] == INCONCLUSIVE and len(ev.replicates) > 1:
         if len(set(per)) > 1:
             said = ", ".join(f"rep{r} {v}" for r, v in zip(ev.replicates, per, strict=True))
@@ -209,6 +233,13 @@ def _why(ev: _Evaluation, row: Mapping[str, Any], pair: Pair, causes: Sequence[s
     else:
         cause = "not explained"
     return "; ".join([cause, *notes])
+
+
+def _mean_over(per: Mapping[tuple[str, int], pd.Series], model: str, draws: Sequence[int]) -> float:
+    """A model's value averaged over its seeds in each of ``draws``, then over those draws: the
+    same draws as the row's interval."""
+    values = [float(s.mean()) for (m, r), s in per.items() if m == model and r in draws]
+    return float(np.mean(values)) if values else math.nan
 
 
 def _not_evaluated(
@@ -230,7 +261,8 @@ def _not_evaluated(
             "ours": "–",
             **verdicts,
             "verdict": NOT_EVALUATED,
-            "verdict trained": NOT_EVALUATED,
+            "verdict FDR": NOT_EVALUATED,
+            "verdict all draws": NOT_EVALUATED,
             "draws needed": "",
             "why": f"{NOT_EVALUATED}: {why}",
         }
@@ -257,7 +289,8 @@ def _closed_loop(ev: _Evaluation, runs: pd.DataFrame, claim: ClosedLoopClaim) ->
             _not_evaluated(ev, name, comparison, pair.paper_text, why, claim.setting)
             continue
         verdicts, spans = _verdicts(ev, effects, pair)
-        values = _both(pair, _mean_of(per, pair.a), _mean_of(per, pair.b))
+        used = verdicts["_draws"]
+        values = _both(pair, _mean_over(per, pair.a, used), _mean_over(per, pair.b, used))
         row = {
             "setting": claim.setting,
             "claim": name,
@@ -302,8 +335,6 @@ def _model(ev: _Evaluation, claim: ModelClaim, tables: Mapping[int, pd.DataFrame
             _not_evaluated(ev, claim.name, comparison, pair.paper_text, why)
             continue
         effects = {r: [float(p[pair.a] - p[pair.b])] for r, p in per.items()}
-        mean_a = float(np.mean([p[pair.a] for p in per.values()]))
-        mean_b = float(np.mean([p[pair.b] for p in per.values()]))
         if claim.exact:
             value = effects[min(effects)][0]
             v = exact_verdict(value, float(np.sign(pair.paper_effect)))
@@ -312,14 +343,19 @@ def _model(ev: _Evaluation, claim: ModelClaim, tables: Mapping[int, pd.DataFrame
                 "ci95_low": value,
                 "ci95_high": value,
                 "draws": len(per),
+                "_draws": sorted(per),
                 **{f"effect rep{r}": effects[r][0] for r in ev.replicates if r in effects},
                 **{f"verdict rep{r}": v for r in ev.replicates},
                 "verdict": v,
-                "verdict trained": v,
+                "verdict all draws": v,
                 "draws needed": "",
+                "exact": True,
             }
         else:
             verdicts, _ = _verdicts(ev, effects, pair)
+        used = verdicts["_draws"]
+        mean_a = float(np.mean([p[pair.a] for r, p in per.items() if r in used] or [math.nan]))
+        mean_b = float(np.mean([p[pair.b] for r, p in per.items() if r in used] or [math.nan]))
         row = {
             "claim": claim.name,
             "comparison": comparison,
@@ -358,8 +394,9 @@ def _bicycle(
                 "draws": 1,
                 "verdict rep0": v,
                 "verdict": v,
-                "verdict trained": v,
+                "verdict all draws": v,
                 "draws needed": "",
+                "exact": True,
                 "why": "" if same else "not explained",
             }
         )
@@ -377,23 +414,24 @@ def evaluate_claims(
     model_claims: Sequence[ModelClaim] = MODEL,
     bicycle: BicycleClaim | None = BICYCLE,
     absent: str = "",
-    real_car: pd.DataFrame | None = None,
-    real_car_claims: Sequence[ClosedLoopClaim] = REAL_CAR_CLAIMS,
+    ground_truth: pd.DataFrame | None = None,
+    ground_truth_claims: Sequence[ClosedLoopClaim] = GROUND_TRUTH_CLAIMS,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Table 8 (internal columns) for the paper's ``runs`` (every draw and seed; a table 1 or
     4 given as one frame is replicate 0's), and the closed-loop rows' intervals per draw and
     pooled (figure 13: claim, comparison, scope, estimate, low, high, paper). With no run, each
     closed-loop claim is a ``not evaluated`` row giving ``absent`` (why there is none) as its
-    reason. ``real_car``: the ground-truth study's runs (every draw and seed), on which
-    ``real_car_claims`` are evaluated the same way (CAPE's own rows, setting "real car")."""
+    reason. ``ground_truth``: the ground-truth study's runs (every draw and seed), on which
+    ``ground_truth_claims`` are evaluated the same way (CAPE's own rows, setting
+    "ground-truth plant")."""
     complexity = {0: complexity} if isinstance(complexity, pd.DataFrame) else dict(complexity or {})
     openloop = {0: openloop} if isinstance(openloop, pd.DataFrame) else dict(openloop or {})
     context = context or Context(openloop=openloop)
     if openloop and not context.openloop:
         context = Context(context.ideal_lap_time, context.failed, openloop)
     runs = runs if "replicate" in runs else runs.assign(replicate=0)
-    if real_car is not None and "replicate" not in real_car:
-        real_car = real_car.assign(replicate=0)
+    if ground_truth is not None and "replicate" not in ground_truth:
+        ground_truth = ground_truth.assign(replicate=0)
     replicates = sorted(
         {int(r) for r in runs["replicate"].unique()} | set(complexity) | set(openloop)
     )
@@ -406,16 +444,16 @@ def evaluate_claims(
                 _not_evaluated(ev, claim.name.format(cells=0), comparison, pair.paper_text, why)
         else:
             _closed_loop(ev, runs, claim)
-    if real_car is not None:
-        for claim in real_car_claims:
-            if real_car.empty:
+    if ground_truth is not None:
+        for claim in ground_truth_claims:
+            if ground_truth.empty:
                 for pair in claim.pairs:
                     comparison = f"{pair.a.upper()}{claim.effect.joiner}{pair.b.upper()}"
                     why = "the ground-truth study has no runs in this target"
                     name = claim.name.format(cells=0)
                     _not_evaluated(ev, name, comparison, pair.paper_text, why, claim.setting)
             else:
-                _closed_loop(ev, real_car, claim)
+                _closed_loop(ev, ground_truth, claim)
     if bicycle is not None:
         _bicycle(ev, bicycle, best_bicycle, labels)
     for claim in model_claims:
@@ -431,18 +469,21 @@ def evaluate_claims(
         "ci95_high",
         "estimate",
         "draws",
+        "p",
         *(f"effect rep{r}" for r in replicates),
         *(f"verdict rep{r}" for r in replicates),
         "verdict",
-        "verdict trained",
+        "verdict FDR",
+        "verdict all draws",
         "draws needed",
         "why",
     ]
-    numeric = ("ci95_low", "ci95_high", "estimate", "draws")
+    numeric = ("ci95_low", "ci95_high", "estimate", "draws", "p")
     for column in order:
         if column not in table:
             table[column] = math.nan if column in numeric or column.startswith("effect") else ""
     table["setting"] = table["setting"].replace("", PAPER_SETTING).fillna(PAPER_SETTING)
+    table["verdict FDR"] = _adjusted(table)
     table = table[order]
     verdict_columns = [f"verdict rep{r}" for r in replicates]
     # a row about replicate 0 alone (the bicycle study's) has no verdict in the other draws (a
@@ -450,6 +491,16 @@ def evaluate_claims(
     table[verdict_columns] = table[verdict_columns].fillna(NOT_RUN)
     columns = ["claim", "comparison", "scope", "estimate", "low", "high", "paper"]
     return table, pd.DataFrame(ev.spans, columns=columns)
+
+
+def _adjusted(table: pd.DataFrame) -> pd.Series:
+    """Each row's verdict adjusted for the false-discovery rate over its setting's rows
+    (Benjamini–Hochberg, cape.study.verdicts.fdr_verdicts); a row not evaluated stays so."""
+    out = table["verdict"].copy()
+    for _, rows in table.groupby("setting", sort=False):
+        adjusted = fdr_verdicts(rows["p"].astype(float).tolist(), rows["verdict"].tolist())
+        out.loc[rows.index] = adjusted
+    return out
 
 
 def draws_of(table: pd.DataFrame) -> list[int]:
@@ -465,20 +516,28 @@ def one_draw(table: pd.DataFrame) -> bool:
 
 
 def presented(table: pd.DataFrame) -> pd.DataFrame:
-    """Table 8 as written and shown: with one draw its verdict is "this training draw"'s (no
-    per-draw or draws-needed columns); with several, the class verdict over the draws beside
-    each draw's verdict about its one network."""
+    """Table 8 as written and shown: with one draw its verdicts are "this training draw"'s (no
+    per-draw or draws-needed columns); with several, the class verdict over the draws that
+    trained (per row and FDR-adjusted) beside the verdict over every draw and each draw's
+    verdict about its one network."""
     draws = draws_of(table)
-    if "setting" in table and not table["setting"].eq(REAL_CAR).any():
+    if "setting" in table and not table["setting"].eq(GROUND_TRUTH).any():
         table = table.drop(columns=["setting"])  # the paper's rows alone: no column to tell
     if len(draws) <= 1:
-        keep = ["claim", "comparison", "paper", "ours", "ci95_low", "ci95_high", "verdict", "why"]
+        keep = ["claim", "comparison", "paper", "ours", "ci95_low", "ci95_high", "p", "verdict",
+                "verdict FDR", "why"]  # fmt: skip
         keep = [c for c in ("setting", *keep) if c in table]
-        return table[keep].rename(columns={"verdict": "verdict (this training draw)"})
+        return table[keep].rename(
+            columns={
+                "verdict": "verdict (this training draw)",
+                "verdict FDR": "verdict FDR (this training draw)",
+            }
+        )
     renamed = {f"verdict rep{r}": f"verdict rep{r} (this network)" for r in draws}
     renamed |= {
-        "verdict": f"verdict ({len(draws)} draws)",
-        "verdict trained": "verdict (draws that trained)",
+        "verdict": "verdict (draws that trained)",
+        "verdict FDR": "verdict FDR (draws that trained)",
+        "verdict all draws": "verdict (every draw, failed trainings included)",
     }
     return table.drop(columns=["estimate"]).rename(columns=renamed)
 
@@ -491,11 +550,14 @@ def holds_for_every_network(table: pd.DataFrame) -> pd.Series:
 
 
 def counts(table: pd.DataFrame) -> dict[str, int]:
-    """How many rows hold, are contradicted, are inconclusive (over the draws, or for this one
-    draw), and how many hold for every network or are contradicted for any."""
+    """How many rows hold, are contradicted, are inconclusive (over the draws that trained, or
+    for this one draw), the same after the false-discovery-rate adjustment, and how many hold
+    for every network or are contradicted for any."""
     reps = [c for c in table.columns if c.startswith("verdict rep")]
     kinds = (*VERDICTS, NOT_EVALUATED)
     out = {"rows": len(table), **{v: int(table["verdict"].eq(v).sum()) for v in kinds}}
+    if "verdict FDR" in table:
+        out |= {f"FDR {v}": int(table["verdict FDR"].eq(v).sum()) for v in VERDICTS}
     if len(reps) > 1:
         out["hold for every network"] = int(holds_for_every_network(table).sum())
         out["contradicted for any network"] = int(table[reps].eq(CONTRADICTED).any(axis=1).sum())

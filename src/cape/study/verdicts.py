@@ -16,6 +16,13 @@ A verdict compares the interval with zero on the paper's side: ``holds`` when it
 there, ``contradicted`` when it lies wholly on the other side, ``inconclusive`` when it
 contains zero. An ordering (EPM < DDM < DPM) is each of its pairwise differences: it holds
 when all hold, is contradicted when any is, and is inconclusive otherwise.
+
+Enough evidence (SPEC §10, revision 5): an interval from one value, or from values that do not
+vary, is a point, and a point decides nothing about a random quantity: ``verdict`` calls it
+inconclusive and ``Interval.why`` says why ("one value", "no spread over 3 draws"). Only a row
+declared exact (``exact_verdict``: parameter counts, the deterministic bicycle comparison)
+decides from a point. Each interval carries the two-sided p-value of the same t-test;
+``fdr_verdicts`` adjusts a family of rows for the false-discovery rate (Benjamini–Hochberg).
 """
 
 from __future__ import annotations
@@ -40,8 +47,9 @@ NO_EFFECT = "no effect measured"
 @dataclass(frozen=True)
 class Interval:
     """An effect's estimate (the mean of the draws' effects), its interval, what the interval
-    is taken over (``unit``), how many draws and values it rests on and the spread of the
-    unit's values (the draws' effects, or one draw's seeds: ``sd``, ddof 1)."""
+    is taken over (``unit``), how many draws and values it rests on, the spread of the unit's
+    values (the draws' effects, or one draw's seeds: ``sd``, ddof 1), the two-sided p-value of
+    the t-test against zero, and ``why`` a point decides nothing ("" for an interval)."""
 
     estimate: float
     low: float
@@ -50,6 +58,8 @@ class Interval:
     values: int
     unit: str = DRAWS
     sd: float = math.nan
+    p: float = math.nan
+    why: str = ""
 
     def contains_zero(self) -> bool:
         return self.low <= 0.0 <= self.high
@@ -83,31 +93,52 @@ def t_interval(x: np.ndarray, level: float = 0.95) -> tuple[np.ndarray, np.ndarr
     return np.asarray(ci.low), np.asarray(ci.high)
 
 
+def t_test(x: np.ndarray, level: float = 0.95) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``t_interval`` and the two-sided p-value of the same one-sample t-test against zero."""
+    result = stats.ttest_1samp(x, 0.0, axis=-1)
+    ci = result.confidence_interval(confidence_level=level)
+    return np.asarray(ci.low), np.asarray(ci.high), np.asarray(result.pvalue)
+
+
+def _no_spread(x: np.ndarray) -> bool:
+    """Values equal to rounding (a tie in every draw, an integer count that never changes)."""
+    return bool(np.ptp(x) <= 1e-12 * max(1.0, float(np.abs(x).max())))
+
+
 def interval(effects: Mapping[int, Sequence[float]], level: float = 0.95) -> Interval:
     """The effect's estimate and its ``level`` interval (``effects``: replicate → the effect's
     values, one per seed or one for the draw): Student's t over the draws' means with two or
-    more draws, over the seeds with one; NaN without values."""
+    more draws, over the seeds with one; NaN without values; a point, with ``why``, from one
+    value or values that do not vary."""
     groups = _groups(effects)
     values = sum(g.size for g in groups)
     if not groups:
-        return Interval(math.nan, math.nan, math.nan, 0, 0, NONE)
+        return Interval(math.nan, math.nan, math.nan, 0, 0, NONE, why="no values")
     if len(groups) >= 2:
         x, unit = np.array([g.mean() for g in groups]), DRAWS
     else:
         x, unit = groups[0], SEEDS
     estimate = float(x.mean())
-    if x.size < 2 or np.ptp(x) <= 1e-12 * max(1.0, float(np.abs(x).max())):  # equal to rounding
-        return Interval(estimate, estimate, estimate, len(groups), values, POINT, 0.0)
-    low, high = t_interval(x, level)
+    if x.size < 2:
+        return Interval(estimate, estimate, estimate, len(groups), values, POINT, why="one value")
+    if _no_spread(x):
+        why = f"no spread over {x.size} {unit}"
+        return Interval(estimate, estimate, estimate, len(groups), values, POINT, 0.0, why=why)
+    low, high, p = t_test(x, level)
     return Interval(
-        estimate, float(low), float(high), len(groups), values, unit, float(x.std(ddof=1))
-    )
+        estimate, float(low), float(high), len(groups), values, unit, float(x.std(ddof=1)),
+        float(p),
+    )  # fmt: skip
 
 
 def verdict(span: Interval, paper_sign: float) -> str:
     """``holds`` / ``contradicted`` / ``inconclusive`` for an effect the paper says is of sign
-    ``paper_sign`` (+1 or −1); an effect without values is inconclusive."""
-    if math.isnan(span.low) or paper_sign == 0 or span.contains_zero():
+    ``paper_sign`` (+1 or −1); an effect without values, or a point (``span.why``), is
+    inconclusive: a random quantity needs a spread to be decided (rows declared exact use
+    ``exact_verdict``)."""
+    if span.unit in (POINT, NONE) or math.isnan(span.low) or paper_sign == 0:
+        return INCONCLUSIVE
+    if span.contains_zero():
         return INCONCLUSIVE
     same = (span.low > 0) == (paper_sign > 0)
     return HOLDS if same else CONTRADICTED
@@ -139,6 +170,8 @@ def draws_needed(span: Interval, level: float = 0.95, power: float = 0.8, most: 
     study: adding draws until a row is decided would inflate its error rate (docs/study.md)."""
     if span.unit == POINT and span.replicates >= 2 and span.estimate == 0:
         return NO_EFFECT  # a tie in every draw and seed
+    if span.unit == POINT and span.replicates >= 2:
+        return "a spread first"  # equal effects in every draw: no power computation applies
     if span.unit != DRAWS or not span.sd > 0:
         return ""
     size = abs(span.estimate) / span.sd  # Cohen's d of the draws' effects
@@ -153,3 +186,25 @@ def draws_needed(span: Interval, level: float = 0.95, power: float = 0.8, most: 
         TTestPower().power(effect_size=size, nobs=draws, alpha=1.0 - level) >= power
     )
     return str(int(draws[reached[0]])) if reached.size else f"> {most}"
+
+
+FDR_Q = 0.05
+"""The false-discovery rate each setting's family of rows is held to (SPEC §10)."""
+
+
+def fdr_verdicts(p_values: Sequence[float], verdicts: Sequence[str], q: float = FDR_Q) -> list[str]:
+    """Each row's verdict adjusted for the false-discovery rate over the family: a decided row
+    (``holds`` or ``contradicted``) stays decided only if Benjamini–Hochberg at ``q`` rejects
+    its null (``statsmodels.stats.multitest.multipletests``); the family is the rows with a
+    p-value (a row without one, an exact row or an undecided one, keeps its verdict)."""
+    out = list(verdicts)
+    tested = [i for i, p in enumerate(p_values) if p is not None and math.isfinite(p)]
+    if not tested:
+        return out
+    from statsmodels.stats.multitest import multipletests
+
+    reject = multipletests([p_values[i] for i in tested], alpha=q, method="fdr_bh")[0]
+    for i, rejected in zip(tested, reject, strict=True):
+        if out[i] in (HOLDS, CONTRADICTED) and not rejected:
+            out[i] = INCONCLUSIVE
+    return out
