@@ -51,4 +51,40 @@ def test_every_model_is_ranked_with_its_interval_and_its_effect_against_the_refe
     dpm = rows.loc["dpm"]
     assert dpm["verdict vs reference"] == INCONCLUSIVE and dpm["draws needed"] != ""
     assert rows.loc["newcomer", "test_rmse_omega"] == pytest.approx(2.0)  # mean of 1, 2, 3
-    assert rows.loc["newcomer", "NMPC-family failures per seed"] == "0"
+    assert rows.loc["newcomer", "NMPC-family failures per seed"] == "0 (no spread over 3 draws)"
+
+
+def test_a_model_without_the_primary_metric_is_not_evaluated_and_unranked() -> None:
+    """A model whose runs hold no adaptive NMPC lap (its controller absent) has no place in the
+    ranking: `not evaluated`, no rank, and why; the others are ranked as before."""
+    runs = _runs()
+    runs.loc[runs["model"] == "newcomer", "controller"] = "pid"
+    table = leaderboard(runs, list(LAPS), "epm", "anmpc_lap_time")
+    rows = table.set_index("model")
+    assert list(table["model"][:3]) == ["epm", "dpm", "ddm"]
+    assert list(table["rank"][:3]) == [1, 2, 3] and pd.isna(rows.loc["newcomer", "rank"])
+    assert rows.loc["newcomer", "verdict vs reference"] == "not evaluated"
+    assert "no value of the primary metric" in rows.loc["newcomer", "why"]
+
+
+def test_a_board_without_the_reference_model_says_so_on_every_row() -> None:
+    runs = _runs()
+    table = leaderboard(runs[runs["model"] != "epm"], list(LAPS), "epm", "anmpc_lap_time")
+    assert set(table["verdict vs reference"]) == {"no reference runs"}
+    assert table["why"].str.contains("EPM \\(study.reference_model\\) has no run").all()
+
+
+def test_a_draw_whose_training_failed_is_left_out_and_a_point_decides_nothing() -> None:
+    """DDM's draw 1 failed (it stood in at the cap): its runs leave the board, DDM − EPM rests
+    on draws 0 and 2 and says so; with one draw left the effect is a point, undecided."""
+    runs = _runs()
+    table = leaderboard(runs, ["epm", "ddm"], "epm", "anmpc_lap_time",
+                        failed={1: {"ddm": "stalled"}})  # fmt: skip
+    ddm = table.set_index("model").loc["ddm"]
+    assert ddm["effect vs reference"] == pytest.approx(1.1)  # (1.0 + 1.2) / 2
+    assert "rests on 2 of the study's 3 draws" in ddm["why"]
+    table = leaderboard(runs, ["epm", "ddm"], "epm", "anmpc_lap_time",
+                        failed={1: {"ddm": "stalled"}, 2: {"ddm": "bar"}})  # fmt: skip
+    ddm = table.set_index("model").loc["ddm"]
+    assert ddm["verdict vs reference"] == INCONCLUSIVE
+    assert ddm["why"].startswith("one draw of 3 has a value")

@@ -355,7 +355,7 @@ def test_a_network_left_from_earlier_weights_is_refused(
     # another model into this model's folder: refused before anything is written
     kept = {n: (folder / n).read_bytes() for n in ("model.pt", "meta.json", "loss.csv")}
     other = cape(*[("ddm" if a == "dpm" else a) for a in train])
-    one_message(other, f"--out {folder}: holds a trained 'dpm' of replicate 0, not 'ddm'",
+    one_message(other, f"--out {folder}: holds a trained 'dpm' of no replicate, not 'ddm'",
                 "nothing was changed")  # fmt: skip
     assert {n: (folder / n).read_bytes() for n in kept} == kept
 

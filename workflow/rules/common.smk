@@ -110,11 +110,13 @@ def training_dir(model, seed):
     return TRAINING_FOLDER.format(model=model, training_seed=seed)
 
 
-def health_config_json():
-    """What a training's health check reads: the split and the checks' settings."""
+def health_config_json(model):
+    """What a training's health check reads: the split and the checks' settings, the bar's
+    models narrowed to this one (so that naming a new model there reruns no other check)."""
+    health = dict(config["training"]["health"])
+    health["models"] = [m for m in health.get("models", []) if m == model]
     return json.dumps(
-        {"data": {"split": config["data"]["split"]}, "training": {"health": config["training"]["health"]}},
-        sort_keys=True,
+        {"data": {"split": config["data"]["split"]}, "training": {"health": health}}, sort_keys=True
     )
 
 

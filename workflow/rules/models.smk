@@ -47,7 +47,7 @@ checkpoint training_health:
     output:
         f"{TRAINING_FOLDER}/health.json",
     params:
-        cfg=lambda wildcards: health_config_json(),
+        cfg=lambda wildcards: health_config_json(wildcards.model),
         folder=lambda wildcards, input: os.path.dirname(input.weights),
     conda:
         CAPE_ENV

@@ -107,6 +107,10 @@ def cmd_train(args: argparse.Namespace) -> None:
         if value is not None and not (math.isfinite(value) and value >= least):  # NaN too
             raise CapeError(f"{option} {value}: give a number of at least {least}")
     spec = _model_spec(config, args.model)
+    if args.replicate is None:  # a draw's folder (rep<r>/<model>) keeps its draw; else none
+        from cape.closedloop.provenance import model_replicate
+
+        args.replicate = model_replicate(Path(args.out), {})
     _check_model_folder(Path(args.out), args.model, args.replicate)  # before training
     data_cfg, train_cfg = section(config, "data"), section(config, "training")
     seed = int(args.seed if args.seed is not None else train_cfg["seed"])
@@ -215,11 +219,14 @@ def _check_model_folder(out: Path, model: str, replicate: int | None) -> None:
             "nothing was changed. Choose another folder, or delete those files"
         ) from None
     if meta["name"] != model or meta.get("replicate", replicate) != replicate:
+
+        def said(r: int | None) -> str:
+            return "no replicate" if r is None else f"replicate {r}"
+
         raise CapeError(
-            f"--out {out}: holds a trained {meta['name']!r} of replicate "
-            f"{meta.get('replicate')}, not {model!r} of replicate {replicate}; nothing was "
-            f"changed. Train it into its own folder (results/models/rep{replicate}/{model}), or "
-            "delete that folder first"
+            f"--out {out}: holds a trained {meta['name']!r} of {said(meta.get('replicate'))}, "
+            f"not {model!r} of {said(replicate)}; nothing was changed. Train it into its own "
+            f"folder (results/trainings/{model}/seed<s>), or delete that folder first"
         )
 
 

@@ -45,10 +45,10 @@ def run_models(
         folder = folders(model)
         meta = read_meta(folder)
         trained = model_replicate(folder, meta)
-        if trained != replicate:
-            said = "no replicate" if trained is None else f"replicate {trained}"
+        if trained is not None and trained != replicate:  # a training of no draw: the user's
             raise CapeError(
-                f"--replicate {replicate}: the {model} model in {folder} is {said}'s, so the run "
+                f"--replicate {replicate}: the {model} model in {folder} is replicate {trained}'s, "
+                "so the run "
                 f"would carry its numbers under replicate {replicate}; pass --model "
                 f"{model}=results/models/rep{replicate}/{model} (trained by `snakemake --cores 2 "
                 f"results/models/rep{replicate}/{model}/network.npz`, with training.replicates "

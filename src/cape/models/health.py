@@ -249,3 +249,11 @@ def reliability_table(
                 row[name] = "no bar"
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def draw_cap(metas: Mapping[tuple[int, str], Mapping[str, Any]]) -> int:
+    """The cap on a model's trainings the draws were made under (``training.max_trainings``
+    as ``cape draw`` recorded it; 0 for folders made before draws)."""
+    return max(
+        (int((m.get("draw") or {}).get("max_trainings", 0)) for m in metas.values()), default=0
+    )

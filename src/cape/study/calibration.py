@@ -77,3 +77,79 @@ def exclusion_rate(
     data = nested(rng, trials, draws, seeds, ratio, effect)
     low, high = method(data, level, rng)
     return float(np.mean((low > 0) | (high < 0)))
+
+
+def fdr_family(
+    draws: int,
+    rows: int = 20,
+    effects: int = 10,
+    effect: float = 3.0,
+    ratio: float = 1.0,
+    trials: int = 1000,
+    seeds: int = 5,
+    q: float = 0.05,
+    seed: int = 0,
+) -> tuple[float, float, float]:
+    """Families of ``rows`` table-8 rows, ``effects`` of them with a true effect of ``effect``
+    σ_between (the others none), each row measured over ``draws`` × ``seeds`` (``nested``):
+    the false-discovery rate of the Benjamini–Hochberg verdicts (the mean over trials of the
+    share of decided rows that are null or on the wrong side), the same share without the
+    adjustment, and the adjusted verdicts' power (the share of true effects decided the right
+    way). The p-values are the scorecard's own (``t_test`` over the draws' means)."""
+    from cape.study.verdicts import CONTRADICTED, HOLDS, INCONCLUSIVE, fdr_verdicts, t_test
+
+    rng = np.random.default_rng(seed)
+    truth = np.zeros(rows)
+    truth[:effects] = effect * max(ratio, 1e-9)
+    fdr, raw_fdr, power = [], [], []
+    for _ in range(trials):
+        data = nested(rng, rows, draws, seeds, ratio) + truth[:, None, None]
+        low, high, p = t_test(data.mean(axis=-1))
+        said = [HOLDS if lo > 0 else CONTRADICTED if hi < 0 else INCONCLUSIVE
+                for lo, hi in zip(low, high, strict=True)]  # fmt: skip
+        adjusted = fdr_verdicts(list(p), said, q)
+        for verdicts, out in ((adjusted, fdr), (said, raw_fdr)):
+            decided = np.array([v != INCONCLUSIVE for v in verdicts])
+            right = np.array([v == HOLDS for v in verdicts]) & (truth > 0)
+            false = decided & ~right
+            out.append(false.sum() / max(1, decided.sum()))
+        right = np.array([v == HOLDS for v in adjusted]) & (truth > 0)
+        power.append(right.sum() / max(1, effects))
+    return float(np.mean(fdr)), float(np.mean(raw_fdr)), float(np.mean(power))
+
+
+def replaced_failures(
+    draws: int,
+    fail: float = 0.5,
+    cap_factor: int = 2,
+    failed_shift: float = 5.0,
+    ratio: float = 1.0,
+    trials: int = 2000,
+    seeds: int = 5,
+    seed: int = 0,
+) -> tuple[float, float]:
+    """A model with no true effect whose trainings fail with probability ``fail``: a failed
+    network's effect is off by ``failed_shift`` σ_between (it drives differently). Per trial
+    its trainings are tried in seed order up to ``cap_factor`` × ``draws`` (cape.models.draws),
+    and the verdict is the scorecard's: ``class_interval`` and ``verdict`` over the trained
+    draws (inconclusive with fewer than two). Returns the false-verdict rate over the trained draws
+    and, for comparison, over the first ``draws`` trainings with the failed ones kept."""
+    from cape.models.draws import Outcome, choose_training
+    from cape.study.verdicts import INCONCLUSIVE, class_interval, interval, verdict
+
+    rng = np.random.default_rng(seed)
+    cap = cap_factor * draws
+    false_trained, false_kept = 0, 0
+    for _ in range(trials):
+        failed = rng.random(cap) < fail
+        data = (
+            nested(rng, 1, cap, seeds, ratio)[0]
+            + np.where(failed, failed_shift * ratio, 0)[:, None]
+        )
+        outcomes = [Outcome(k, not failed[k]) for k in range(cap)]
+        chosen = [choose_training(r, cap, outcomes.__getitem__) for r in range(draws)]
+        trained = {c.index: list(data[c.index]) for c in chosen if c.trained}
+        false_trained += verdict(class_interval(trained, draws), -1.0) != INCONCLUSIVE
+        kept = {k: list(data[k]) for k in range(draws)}
+        false_kept += verdict(interval(kept), -1.0) != INCONCLUSIVE
+    return false_trained / trials, false_kept / trials

@@ -44,6 +44,14 @@ def _two_settings(table: pd.DataFrame) -> list[str]:
         verdicts = table.loc[setting.eq(key), "verdict"]
         cells = " | ".join(str(int(verdicts.eq(k).sum())) for k in kinds)
         lines.append(f"| {label}: {len(verdicts)} | {cells} |")
+    if "verdict FDR" in table:
+        lines += ["", "Adjusted for the false-discovery rate over each setting's rows "
+                  "(Benjamini–Hochberg, q = 0.05):", "",
+                  lines[0], lines[1]]  # fmt: skip
+        for key, label in sets:
+            verdicts = table.loc[setting.eq(key), "verdict FDR"]
+            cells = " | ".join(str(int(verdicts.eq(k).sum())) for k in kinds)
+            lines.append(f"| {label}: {len(verdicts)} | {cells} |")
     if len(sets) > 1:
         lines += [
             "",
@@ -77,8 +85,11 @@ def _intro(table: pd.DataFrame, runs: pd.DataFrame) -> list[str]:
     return [
         f"**{len(draws)} training draws (replicates {', '.join(map(str, draws))}).** A verdict is "
         "about the model class: each draw's effect is averaged over its seeds, and the interval is "
-        f"Student's t over the {len(draws)} draws' effects. Each draw's own verdict, over its "
-        "seeds, is a statement about that one trained network (the `rep<r>` columns).",
+        f"Student's t over the draws' effects, the draws whose training worked (a training that "
+        "fails is replaced by the next seed; a draw that stood in at the cap is left out and the "
+        "row says so). A point (one value, or values that do not vary) decides nothing. Each "
+        "draw's own verdict, over its seeds, is a statement about that one trained network (the "
+        "`rep<r>` columns).",
         "",
         common,
     ]
@@ -90,11 +101,13 @@ def at_a_glance(
     health: pd.DataFrame | None = None,
     at_rest: tuple[pd.DataFrame, Sequence[str]] | None = None,
     leaderboard: pd.DataFrame | None = None,
+    reliability: pd.DataFrame | None = None,
 ) -> str:
     """The page: the verdicts (over the draws, or for this one draw), what ran, the trainings
     that failed, the laps without disturbances with the cause of every miss (``at_rest``:
-    ``cape.study.undisturbed.undisturbed``), table 9 (``leaderboard``) and every row of table 8
-    as presented."""
+    ``cape.study.undisturbed.undisturbed``), table 9 (``leaderboard``), each model's recipe
+    reliability (``reliability``: cape.models.health.reliability_table) and every row of table
+    8 as presented."""
     several = len(draws_of(table)) > 1
     scope = "over the training draws" if several else "for this training draw"
     lines = ["# CAPE results at a glance", "", *_intro(table, runs), ""]
@@ -137,16 +150,33 @@ def at_a_glance(
             "class when the draws lie far apart.",
             "",
         ]
+    if reliability is not None and len(reliability):
+        lines += [
+            "## Trainings: how often each recipe fails",
+            "",
+            "A draw is a training that works: each model's trainings are tried in seed order and "
+            "a failed one is replaced by the next seed (`table04_trainings.md` lists every "
+            "training with its reasons). The failure rate's interval is Clopper–Pearson's.",
+            "",
+            to_markdown(reliability, number_formats(reliability)),
+            "",
+        ]
     if health is not None and len(health):
-        lines += ["## Trainings", ""]
+        lines += ["## Draws", ""]
         for model, group in health.groupby("model", sort=False):
             bad = group[~group["trained"]]
             lines.append(
-                f"- {model.upper()}: {len(bad)} of {len(group)} replicate(s) failed to train"
-                + "".join(f"; replicate {r.replicate}: {r.reason}" for r in bad.itertuples())
+                f"- {model.upper()}: {len(group) - len(bad)} of {len(group)} draw(s) trained"
+                + "".join(
+                    f"; draw {r.replicate} (seed {r.seed}) stood in at the cap: {r.reason}"
+                    for r in bad.itertuples()
+                )
+                + "".join(
+                    f"; draw {r.replicate}: {r.outlier} (reported only)"
+                    for r in group.itertuples()
+                    if getattr(r, "outlier", "")
+                )
             )
-        if health["trained"].all():
-            lines.append("- every replicate trained")
         lines.append("")
     if at_rest is not None and len(at_rest[0]):
         grid, causes = at_rest

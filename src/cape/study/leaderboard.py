@@ -7,7 +7,10 @@ seeds, with the Student-t interval over the draws (over the seeds with one draw:
 cape.study.verdicts); beside them the model's open-loop RMSE and complexity (tables 4 and 1,
 mean over draws) and its effect against the reference model on the primary metric, paired on
 draw and seed, with a verdict (``lower``, ``higher`` or ``inconclusive``) and, when undecided,
-the draws that would decide it. Rows are ranked by the primary metric (lowest first).
+the draws that would decide it. Rows are ranked by the primary metric (lowest first), over
+the draws whose training worked; a model without a value of it is ``not evaluated`` and
+unranked, and a board without the reference model's runs says so on every row. As in table 8,
+a point (one value, or values that do not vary) decides nothing.
 """
 
 from __future__ import annotations
@@ -20,9 +23,11 @@ import numpy as np
 import pandas as pd
 
 from cape.study.claims import FAILURES, NMPCS, Selection, at_eta, both, controllers
-from cape.study.verdicts import INCONCLUSIVE, draws_needed, interval
+from cape.study.verdicts import INCONCLUSIVE, POINT, class_interval, draws_needed
 
 LOWER, HIGHER = "lower", "higher"
+NOT_EVALUATED = "not evaluated"
+NO_REFERENCE = "no reference runs"
 
 
 @dataclass(frozen=True)
@@ -81,13 +86,24 @@ def per_seed(runs: pd.DataFrame, metric: Metric) -> dict[tuple[str, int], pd.Ser
     return out
 
 
-def _span_text(values: Mapping[int, Sequence[float]]) -> tuple[float, str]:
-    span = interval(values)
+def _span_text(values: Mapping[int, Sequence[float]], study_draws: int) -> tuple[float, str]:
+    span = class_interval(values, study_draws)
     if math.isnan(span.estimate):
         return math.nan, "–"
-    if span.low == span.high:
-        return span.estimate, f"{span.estimate:.3g}"
+    if span.unit == POINT:
+        return span.estimate, f"{span.estimate:.3g} ({span.why})"
     return span.estimate, f"{span.estimate:.3g} [{span.low:.3g}, {span.high:.3g}]"
+
+
+def trained_runs(runs: pd.DataFrame, failed: Mapping[int, Mapping[str, str]]) -> pd.DataFrame:
+    """The runs of the draws whose training worked (``failed``: replicate → model → reason, the
+    draws that stood in for a model that reached its cap)."""
+    if not failed or runs.empty:
+        return runs
+    drop = pd.Series(False, index=runs.index)
+    for replicate, models in failed.items():
+        drop |= (runs["replicate"] == replicate) & runs["model"].isin(list(models))
+    return runs[~drop]
 
 
 def leaderboard(
@@ -99,19 +115,28 @@ def leaderboard(
     complexity: Mapping[int, pd.DataFrame] | None = None,
     power: float = 0.8,
     most_draws: int = 100,
+    failed: Mapping[int, Mapping[str, str]] | None = None,
+    reliability: pd.DataFrame | None = None,
 ) -> pd.DataFrame:
     """Table 9 for one study's ``runs`` (every draw and seed; ``model``: the model the run is
-    about): one row per model of ``models`` that has runs, ranked by ``primary``; see the module
-    docstring. ``reference``: the model the effects are taken against."""
+    about): one row per model of ``models`` that has runs, ranked by ``primary`` over the
+    draws that trained (``failed``: the draws left out); see the module docstring.
+    ``reference``: the model the effects are taken against; ``reliability``: per model, the
+    trainings tried and the failure rate (cape.models.health.reliability_table). A model with
+    no value of the primary metric is ``not evaluated`` and unranked; without the reference's
+    runs every row says so."""
     runs = runs if "replicate" in runs else runs.assign(replicate=0)
+    study_draws = int(runs["replicate"].nunique()) if len(runs) else 0
+    runs = trained_runs(runs, failed or {})
     present = [m for m in models if m in set(runs["model"])]
     values = {metric.key: per_seed(runs, metric) for metric in METRICS}
+    has_reference = any(m == reference for m, _ in values[primary])
     rows = []
     for model in present:
         row: dict[str, object] = {"model": model}
         for metric in METRICS:
             mine = {r: list(v) for (m, r), v in values[metric.key].items() if m == model}
-            estimate, text = _span_text(mine)
+            estimate, text = _span_text(mine, study_draws)
             row[metric.label] = text
             if metric.key == primary:
                 row["_rank"] = estimate
@@ -124,13 +149,39 @@ def leaderboard(
                     if model in set(t["model"]) and column in t
                 ]
                 row[column] = float(np.mean(found)) if found else math.nan
-        row.update(_against(values[primary], model, reference, power, most_draws))
+        if reliability is not None and model in set(reliability["model"]):
+            mine = reliability.set_index("model").loc[model]
+            row["trainings (failed)"] = f"{int(mine['trainings tried'])} ({int(mine['failed'])})"
+            row["failure rate"] = (
+                f"{mine['failure rate']:.0%} [{mine['ci95_low']:.0%}, {mine['ci95_high']:.0%}]"
+            )
+        if math.isnan(float(row["_rank"])):
+            label = metric_of(primary).label
+            row.update({
+                "effect vs reference": math.nan, "ci95_low": math.nan, "ci95_high": math.nan,
+                "verdict vs reference": NOT_EVALUATED, "draws needed": "",
+                "why": f"{NOT_EVALUATED}: no value of the primary metric ({label}) in this "
+                "study's runs of the draws that trained",
+            })  # fmt: skip
+        elif not has_reference:
+            row.update({
+                "effect vs reference": math.nan, "ci95_low": math.nan, "ci95_high": math.nan,
+                "verdict vs reference": NO_REFERENCE, "draws needed": "",
+                "why": f"{NO_REFERENCE}: {reference.upper()} (study.reference_model) has no run "
+                "of the primary metric in this study",
+            })  # fmt: skip
+        else:
+            row.update(_against(values[primary], model, reference, power, most_draws, study_draws))
         rows.append(row)
     table = pd.DataFrame(rows)
     if table.empty:
         return table
-    table = table.sort_values("_rank", na_position="last", kind="stable")
-    table.insert(0, "rank", range(1, len(table) + 1))
+    ranked = table["_rank"].notna()
+    table = pd.concat(
+        [table[ranked].sort_values("_rank", kind="stable"), table[~ranked]], ignore_index=True
+    )
+    ranks = [*range(1, int(ranked.sum()) + 1), *[None] * int((~ranked).sum())]
+    table.insert(0, "rank", pd.array(ranks, dtype="Int64"))  # unranked: empty
     return table.drop(columns=["_rank"]).reset_index(drop=True)
 
 
@@ -140,12 +191,14 @@ def _against(
     reference: str,
     power: float,
     most_draws: int,
+    study_draws: int,
 ) -> dict[str, object]:
     """The primary metric's effect of ``model`` against ``reference``, paired on draw and seed:
-    its interval, verdict and the draws needed when undecided."""
+    its interval, verdict (a point decides nothing: ``why`` says why) and the draws needed
+    when undecided."""
     nothing = {"effect vs reference": math.nan, "ci95_low": math.nan, "ci95_high": math.nan}
     if model == reference:
-        return {**nothing, "verdict vs reference": "the reference", "draws needed": ""}
+        return {**nothing, "verdict vs reference": "the reference", "draws needed": "", "why": ""}
     effects = {}
     for (m, r), mine in values.items():
         if m != model or (reference, r) not in values:
@@ -154,17 +207,26 @@ def _against(
         common = mine.index.intersection(other.index)
         if len(common):
             effects[r] = list((mine[common] - other[common]).astype(float))
-    span = interval(effects)
-    if math.isnan(span.low):
-        return {**nothing, "verdict vs reference": INCONCLUSIVE, "draws needed": ""}
-    if span.contains_zero():
-        said, needed = INCONCLUSIVE, draws_needed(span, 0.95, power, most_draws)
+    span = class_interval(effects, study_draws)
+    if math.isnan(span.estimate):
+        why = f"no draw and seed in common with {reference.upper()}"
+        return {**nothing, "verdict vs reference": INCONCLUSIVE, "draws needed": "", "why": why}
+    if span.unit == POINT:
+        said, needed, why = INCONCLUSIVE, draws_needed(span, 0.95, power, most_draws), span.why
+    elif span.contains_zero():
+        said, needed, why = INCONCLUSIVE, draws_needed(span, 0.95, power, most_draws), ""
     else:
-        said, needed = (LOWER if span.high < 0 else HIGHER), ""
+        said, needed, why = (LOWER if span.high < 0 else HIGHER), "", ""
+    fewer = (
+        f"rests on {span.replicates} of the study's {study_draws} draws"
+        if study_draws > 1 and span.replicates < study_draws
+        else ""
+    )
     return {
         "effect vs reference": span.estimate,
         "ci95_low": span.low,
         "ci95_high": span.high,
         "verdict vs reference": said,
         "draws needed": needed,
+        "why": "; ".join(w for w in (why, fewer) if w),
     }

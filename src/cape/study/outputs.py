@@ -87,6 +87,8 @@ WHOLE_STUDY_NOTEBOOKS: dict[str, NotebookOutputs] = {
             "table08_scorecard",
             "table09_leaderboard",
             "table04_replicates",
+            "table04_trainings",
+            "table04_reliability",
             "table01_replicates",
         ),
     ),

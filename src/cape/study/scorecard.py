@@ -47,6 +47,7 @@ from cape.study.verdicts import (
     INCONCLUSIVE,
     VERDICTS,
     Interval,
+    class_interval,
     draw_effects,
     draws_needed,
     exact_verdict,
@@ -162,8 +163,9 @@ def _verdicts(
     the draws needed when undecided."""
     sign = float(np.sign(pair.paper_effect))
     kept = {r: effects[r] for r in _trained(ev.context, pair, ev.replicates) if r in effects}
-    headline = interval(kept, LEVEL)
-    every = interval(effects, LEVEL)
+    study = len(ev.replicates)
+    headline = class_interval(kept, study, LEVEL)
+    every = class_interval(effects, study, LEVEL)
     spans = {"pooled": headline}
     row: dict[str, Any] = {
         "ci95_low": headline.low,
@@ -198,7 +200,7 @@ def _why(ev: _Evaluation, row: Mapping[str, Any], pair: Pair, causes: Sequence[s
     used = row.get("_draws", [])
     fewer = (
         f"rests on {len(used)} of the study's {len(ev.replicates)} draws"
-        if len(ev.replicates) > 1 and len(used) < len(ev.replicates)
+        if len(ev.replicates) > 1 and 0 < len(used) < len(ev.replicates)
         else ""
     )
     if row["verdict"] == HOLDS:
@@ -207,16 +209,12 @@ def _why(ev: _Evaluation, row: Mapping[str, Any], pair: Pair, causes: Sequence[s
     per = [row.get(f"verdict rep{r}", INCONCLUSIVE) for r in ev.replicates]
     evidence = row.get("_evidence", "")
     if row["verdict"] == INCONCLUSIVE and evidence:
-        tie = row["ci95_low"] == row["ci95_high"] == 0
-        cause = (
-            f"{evidence}: a tie in every draw and seed"
-            if tie
-            else f"{evidence}: no spread, no verdict"
-        )
-        if evidence == "one value":
-            cause = "one value: no spread, no verdict"
         if evidence == "no values":
             cause = "no draw that trained has a value"
+        elif row["ci95_low"] == row["ci95_high"] == 0:
+            cause = f"{evidence}: a tie in every draw and seed"
+        else:
+            cause = f"{evidence}: no verdict without a spread"
     elif row["verdict"] == INCONCLUSIVE and len(ev.replicates) > 1:
         if len(set(per)) > 1:
             said = ", ".join(f"rep{r} {v}" for r, v in zip(ev.replicates, per, strict=True))
@@ -291,12 +289,13 @@ def _closed_loop(ev: _Evaluation, runs: pd.DataFrame, claim: ClosedLoopClaim) ->
         verdicts, spans = _verdicts(ev, effects, pair)
         used = verdicts["_draws"]
         values = _both(pair, _mean_over(per, pair.a, used), _mean_over(per, pair.b, used))
+        ours = f"{verdicts['estimate']:.3g}{claim.unit} ({values})" if used else "–"
         row = {
             "setting": claim.setting,
             "claim": name,
             "comparison": comparison,
             "paper": pair.paper_text,
-            "ours": f"{verdicts['estimate']:.3g}{claim.unit} ({values})",
+            "ours": ours,
             **verdicts,
         }
         row["why"] = _why(ev, row, pair, [cause(ev.context, pair) for cause in claim.causes])
@@ -360,7 +359,7 @@ def _model(ev: _Evaluation, claim: ModelClaim, tables: Mapping[int, pd.DataFrame
             "claim": claim.name,
             "comparison": comparison,
             "paper": pair.paper_text,
-            "ours": f"{verdicts['estimate']:.3g} ({_both(pair, mean_a, mean_b)})",
+            "ours": f"{verdicts['estimate']:.3g} ({_both(pair, mean_a, mean_b)})" if used else "–",
             **verdicts,
         }
         row["why"] = _why(ev, row, pair, [cause(ev.context, pair) for cause in claim.causes])

@@ -131,6 +131,23 @@ def interval(effects: Mapping[int, Sequence[float]], level: float = 0.95) -> Int
     )  # fmt: skip
 
 
+def class_interval(
+    effects: Mapping[int, Sequence[float]], study_draws: int, level: float = 0.95
+) -> Interval:
+    """``interval`` for a claim about a model class in a study of ``study_draws`` draws: with
+    two or more, one draw's seeds say nothing about the class, so an effect left with values
+    in fewer than two draws (the others failed to train, or have none) is a point that decides
+    nothing; with one (the default target), the interval over that draw's seeds is about its
+    networks, as the table says."""
+    span = interval(effects, level)
+    if study_draws >= 2 and span.replicates == 1:
+        return Interval(
+            span.estimate, span.estimate, span.estimate, span.replicates, span.values, POINT,
+            why=f"one draw of {study_draws} has a value",
+        )  # fmt: skip
+    return span
+
+
 def verdict(span: Interval, paper_sign: float) -> str:
     """``holds`` / ``contradicted`` / ``inconclusive`` for an effect the paper says is of sign
     ``paper_sign`` (+1 or −1); an effect without values, or a point (``span.why``), is
