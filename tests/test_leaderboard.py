@@ -88,3 +88,21 @@ def test_a_draw_whose_training_failed_is_left_out_and_a_point_decides_nothing() 
     ddm = table.set_index("model").loc["ddm"]
     assert ddm["verdict vs reference"] == INCONCLUSIVE
     assert ddm["why"].startswith("one draw of 3 has a value")
+
+
+def test_a_model_whose_every_draw_failed_stays_on_the_board_unranked() -> None:
+    """Every DDM draw stood in for a failed training: DDM keeps its row, `not evaluated` and
+    unranked, saying its draws did not train; with EPM's draws failed instead, the board says
+    on every row that the reference has no run whose training worked."""
+    runs = _runs()
+    every = {r: {"ddm": "bar"} for r in range(3)}
+    table = leaderboard(runs, ["epm", "ddm", "dpm"], "epm", "anmpc_lap_time", failed=every)
+    rows = table.set_index("model")
+    assert list(table["model"]) == ["epm", "dpm", "ddm"] and pd.isna(rows.loc["ddm", "rank"])
+    assert rows.loc["ddm", "verdict vs reference"] == "not evaluated"
+    assert "none of its draws in this study trained" in rows.loc["ddm", "why"]
+    gone = {r: {"epm": "bar"} for r in range(3)}
+    table = leaderboard(runs, ["epm", "ddm", "dpm"], "epm", "anmpc_lap_time", failed=gone)
+    others = table[table["model"] != "epm"]
+    assert set(others["verdict vs reference"]) == {"no reference runs"}
+    assert others["why"].str.endswith("whose training worked").all()

@@ -199,7 +199,7 @@ def test_hand_made_runs_give_one_case_of_each_verdict_over_the_draws() -> None:
     assert mixed["why"] == (
         "the training draws disagree (rep0 contradicted, rep1 holds, rep2 holds); "
         "rests on 2 of the study's 3 draws; training failed and reached the cap: DPM draw 1 "
-        "(left out of the verdict, kept in `verdict all draws`)"
+        "(left out of the verdict, kept in the verdict over every draw, failed trainings included)"
     )
     assert mixed["verdict all draws"] == INCONCLUSIVE
     every = interval({r: [e] for r, e in enumerate((0.5, -1.5, -0.8))})

@@ -127,8 +127,9 @@ def leaderboard(
     runs every row says so."""
     runs = runs if "replicate" in runs else runs.assign(replicate=0)
     study_draws = int(runs["replicate"].nunique()) if len(runs) else 0
+    present = [m for m in models if m in set(runs["model"])]  # a model whose draws all failed too
     runs = trained_runs(runs, failed or {})
-    present = [m for m in models if m in set(runs["model"])]
+    untrained = {m for m in present if m not in set(runs["model"])}
     values = {metric.key: per_seed(runs, metric) for metric in METRICS}
     has_reference = any(m == reference for m, _ in values[primary])
     rows = []
@@ -157,18 +158,25 @@ def leaderboard(
             )
         if math.isnan(float(row["_rank"])):
             label = metric_of(primary).label
+            cause = (
+                "none of its draws in this study trained (its trainings reached "
+                "training.max_trainings)"
+                if model in untrained
+                else f"no value of the primary metric ({label}) in this study's runs of the "
+                "draws that trained"
+            )
             row.update({
                 "effect vs reference": math.nan, "ci95_low": math.nan, "ci95_high": math.nan,
                 "verdict vs reference": NOT_EVALUATED, "draws needed": "",
-                "why": f"{NOT_EVALUATED}: no value of the primary metric ({label}) in this "
-                "study's runs of the draws that trained",
+                "why": f"{NOT_EVALUATED}: {cause}",
             })  # fmt: skip
         elif not has_reference:
             row.update({
                 "effect vs reference": math.nan, "ci95_low": math.nan, "ci95_high": math.nan,
                 "verdict vs reference": NO_REFERENCE, "draws needed": "",
                 "why": f"{NO_REFERENCE}: {reference.upper()} (study.reference_model) has no run "
-                "of the primary metric in this study",
+                "of the primary metric in this study"
+                + (" whose training worked" if reference in untrained else ""),
             })  # fmt: skip
         else:
             row.update(_against(values[primary], model, reference, power, most_draws, study_draws))

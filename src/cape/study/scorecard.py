@@ -151,7 +151,7 @@ def _failed_note(context: Context, pair: Pair) -> str:
         return ""
     return (
         f"training failed and reached the cap: {'; '.join(notes)} (left out of the verdict, "
-        "kept in `verdict all draws`)"
+        "kept in the verdict over every draw, failed trainings included)"
     )
 
 
