@@ -71,6 +71,32 @@ def test_the_example_modules_register_their_names(config) -> None:
     assert nxt == pytest.approx((1.04, 0.08, 0.3))  # v + Ts·Φ, whatever the input
 
 
+def test_the_tuned_ddm_is_ddms_class_under_its_own_name_and_recipe(config) -> None:
+    """config/examples/ddm_tuned.yaml, merged over the config as Snakemake's --configfile does:
+    the config validates, `ddm_tuned` builds DDM's physics and network (the same parameter
+    count) under its own name, trains with its own recipe, and the bar applies to it."""
+    import copy
+
+    import torch
+
+    from cape.config import validate_config
+    from cape.models.training import build_model
+
+    overlay = yaml.safe_load((REPO_ROOT / "config/examples/ddm_tuned.yaml").read_text())
+    merged = validate_config(_merge(copy.deepcopy(config), overlay), "ddm_tuned.yaml")
+    tuned, ddm = merged["models"]["ddm_tuned"], merged["models"]["ddm"]
+    assert tuned["train"] == {"lr": 1.44e-4, "batch_size": 2, "epochs": 400}
+    assert "ddm_tuned" in merged["training"]["health"]["models"]
+    torch.set_num_threads(1)
+    a = build_model("ddm_tuned", tuned, 0.02, seed=0)
+    b = build_model("ddm", ddm, 0.02, seed=0)
+    assert a.physics.name == "ddm_tuned" and b.physics.name == "ddm"
+    assert type(a.physics) is type(b.physics)
+    assert sum(p.numel() for p in a.parameters()) == sum(p.numel() for p in b.parameters())
+    for (n, p), (m, q) in zip(a.state_dict().items(), b.state_dict().items(), strict=True):
+        assert n == m and torch.equal(p, q)  # one class, one seed: the same initial network
+
+
 @pytest.mark.slow
 def test_a_model_and_a_controller_added_by_config_alone_run_through_the_study(
     tmp_path: Path,
