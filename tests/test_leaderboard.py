@@ -78,10 +78,13 @@ def test_a_draw_whose_training_failed_is_left_out_and_a_point_decides_nothing() 
     """DDM's draw 1 failed (it stood in at the cap): its runs leave the board, DDM − EPM rests
     on draws 0 and 2 and says so; with one draw left the effect is a point, undecided."""
     runs = _runs()
-    table = leaderboard(runs, ["epm", "ddm"], "epm", "anmpc_lap_time",
+    openloop = {r: pd.DataFrame({"model": ["epm", "ddm"], "test_rmse_omega": [2.0, 10.0 ** r]})
+                for r in range(3)}  # fmt: skip
+    table = leaderboard(runs, ["epm", "ddm"], "epm", "anmpc_lap_time", openloop=openloop,
                         failed={1: {"ddm": "stalled"}})  # fmt: skip
     ddm = table.set_index("model").loc["ddm"]
     assert ddm["effect vs reference"] == pytest.approx(1.1)  # (1.0 + 1.2) / 2
+    assert ddm["test_rmse_omega"] == pytest.approx(50.5)  # draws 0 and 2: (1 + 100) / 2
     assert "rests on 2 of the study's 3 draws" in ddm["why"]
     table = leaderboard(runs, ["epm", "ddm"], "epm", "anmpc_lap_time",
                         failed={1: {"ddm": "stalled"}, 2: {"ddm": "bar"}})  # fmt: skip

@@ -4,12 +4,14 @@ grid's replicates (SPEC §8)."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pandas as pd
 import pytest
 from scipy import stats
 
-from cape.models.health import outliers, training_checks, training_health
+from cape.models.health import outliers, training_checks
 from cape.study.calibration import bootstrap_two_level, exclusion_rate, nested, t_over_draws
 from cape.study.claims import ClosedLoopClaim, Context, Pair, controllers
 from cape.study.grid import RunId, canonical, study_runs
@@ -197,7 +199,7 @@ def test_hand_made_runs_give_one_case_of_each_verdict_over_the_draws() -> None:
     assert mixed["estimate"] == pytest.approx(-0.15)  # the draws that trained: (0.5 − 0.8) / 2
     assert mixed["ours"].startswith("-0.15 s (EPM 6.95, DPM 7.1)")  # over the same two draws
     assert mixed["why"] == (
-        "the training draws disagree (rep0 contradicted, rep1 holds, rep2 holds); "
+        "the training draws disagree (rep0 contradicted, rep2 holds); "  # draw 1 left out
         "rests on 2 of the study's 3 draws; training failed and reached the cap: DPM draw 1 "
         "(left out of the verdict, kept in the verdict over every draw, failed trainings included)"
     )
@@ -267,18 +269,15 @@ def test_a_failed_training_is_flagged_by_each_check() -> None:
     flat = [0.7, 0.3, 0.2, 0.17, 0.163] + [0.163] * 395  # DDM's seed-1 training
     assert "stalled" in training_checks("ddm", good, flat, settings)[0]
     assert training_checks("ddm", good, flat[:5], settings) == []  # too short to tell
+    # NaN passes every comparison: a training with a non-finite number fails, whatever the bar
+    nan_late = [*flat[:7], math.nan, *flat[8:]]  # min() of it is NaN, and NaN < 1 % is False
+    assert training_checks("ddm", good, nan_late, settings) == ["not finite: the training loss"]
+    assert training_checks("dpm", {**good, "vy": math.nan}, falling, settings) == [
+        "not finite: validation RMSE vy"
+    ]
     flagged = outliers({0: 1e-7, 1: 2e-7, 2: 5e-5}, 10)
     assert list(flagged) == [2] and "10 × the replicates' median 2e-07" in flagged[2]
     assert outliers({0: 1e-7, 1: 5e-5}, 10) == {}  # two replicates: no median to speak of
-    table = pd.DataFrame([{"model": "ddm", **{f"val_rmse_{k}": v for k, v in good.items()}}])
-    health = training_health(
-        {0: table, 1: table, 2: table},
-        {(r, "ddm"): pd.DataFrame({"train_loss": flat if r == 1 else falling}) for r in range(3)},
-        {(0, "ddm"): 1e-7, (1, "ddm"): 0.16, (2, "ddm"): 2e-7},
-        settings,
-    )
-    assert health["trained"].tolist() == [True, False, True]
-    assert "stalled" in health["reason"][1] and "median" in health["reason"][1]
 
 
 def test_the_papers_study_runs_for_every_replicate_and_the_others_for_replicate_0() -> None:
@@ -398,13 +397,14 @@ def test_one_value_no_spread_or_a_missing_draw_decide_nothing() -> None:
 def test_the_fdr_adjusted_verdicts_keep_the_false_discovery_rate(draws: int) -> None:
     """Families of 20 rows, half with a true effect of 3 σ_between and half with none, over
     three and five draws: the Benjamini–Hochberg verdicts' false-discovery rate stays at most
-    5 % (expected 2.5 %: q × the null share), while the same rows unadjusted reach more
-    (6.7 % at three draws, 1000 families)."""
+    5 % (expected 2.5 %: q × the null share), while at three draws the same rows unadjusted
+    exceed 5 % (6.4 % over these 600 families; 4.6 % at five draws)."""
     from cape.study.calibration import fdr_family
 
     fdr, raw, power = fdr_family(draws, trials=600, seed=draws)
     assert fdr <= 0.05, f"R = {draws}: FDR {fdr:.1%}"
-    assert raw > fdr  # the adjustment is what holds it
+    if draws == 3:  # where the unadjusted rows exceed the rate: the adjustment is what holds it
+        assert raw > 0.05, f"R = 3: unadjusted {raw:.1%}"
     assert power > (0.1 if draws == 3 else 0.9)
 
 

@@ -1,15 +1,18 @@
 """Did a training work? (SPEC §4: a failed training is a result, not a model.)
 
-A replicate whose training plainly failed is flagged, never dropped: its closed-loop runs stay
-in the study, and verdicts are given over all replicates and over those that trained. Three
-checks, each with its settings in ``training.health``:
+A training that fails the checks on the training alone is kept with its reasons and replaced
+by the model's next training seed (cape.models.draws); the verdicts are over the draws that
+trained, with the verdict over every draw beside. The checks, with their settings in
+``training.health``:
 
+- *finite numbers*: a training loss or a validation RMSE that is NaN or infinite fails;
 - *the bar* (SPEC §4.2, for the models it names: DDM and EPM): one-step RMSE on the ETHZ
   validation split below ``val_rmse_max`` for every component;
 - *a stalled loss*: the training loss falls by less than ``stall.min_drop`` (relative) after
-  epoch ``stall.after`` (DDM's seed-1 training sat at 0.163 for 398 epochs);
-- *an outlier among replicates*: a best validation loss more than ``outlier_factor`` × the
-  median of the model's replicates (needs three or more replicates).
+  epoch ``stall.after``.
+
+Beside them, never a reason to retrain: *an outlier among draws*, a best validation loss more
+than ``outlier_factor`` × the median of the model's draws (needs three or more).
 """
 
 from __future__ import annotations
@@ -33,6 +36,11 @@ def training_checks(
 ) -> list[str]:
     """The reasons one training failed (none: it trained), from its validation RMSE per
     component and its training loss per epoch."""
+    nonfinite = [f"validation RMSE {s}" for s in STATES if not np.isfinite(float(val_rmse[s]))]
+    if not np.all(np.isfinite(np.asarray(train_loss, dtype=float))):
+        nonfinite.append("the training loss")
+    if nonfinite:  # the other checks compare numbers: NaN would pass them
+        return ["not finite: " + ", ".join(nonfinite)]
     reasons = []
     if model in settings.get("models", ()):
         bar = settings["val_rmse_max"]
@@ -65,44 +73,6 @@ def outliers(best_val_loss: Mapping[int, float], factor: float) -> dict[int, str
     }
 
 
-def training_health(
-    openloop: Mapping[int, pd.DataFrame],
-    losses: Mapping[tuple[int, str], pd.DataFrame],
-    best_val_loss: Mapping[tuple[int, str], float],
-    settings: Mapping[str, Any],
-) -> pd.DataFrame:
-    """One row per (replicate, model): ``trained`` and the ``reason`` it did not.
-    ``openloop``: replicate → table 4 (its ``val_rmse_*`` columns); ``losses``: (replicate,
-    model) → loss.csv; ``best_val_loss``: (replicate, model) → meta.json's."""
-    rows = []
-    for replicate, table in sorted(openloop.items()):
-        for record in table.to_dict("records"):
-            model = str(record["model"])
-            curve = losses.get((replicate, model))
-            loss = [] if curve is None else curve["train_loss"].tolist()
-            val = {s: float(record[f"val_rmse_{s}"]) for s in STATES}
-            reasons = training_checks(model, val, loss, settings)
-            rows.append({"replicate": replicate, "model": model, "reasons": reasons})
-    frame = pd.DataFrame(rows, columns=["replicate", "model", "reasons"])
-    for model in frame["model"].unique():
-        best = {r: v for (r, m), v in best_val_loss.items() if m == model}
-        for replicate, reason in outliers(best, float(settings["outlier_factor"])).items():
-            mask = (frame["model"] == model) & (frame["replicate"] == replicate)
-            for i in frame.index[mask]:
-                frame.at[i, "reasons"] = [*frame.at[i, "reasons"], reason]
-    frame["trained"] = frame["reasons"].map(lambda r: not r)
-    frame["reason"] = frame["reasons"].map("; ".join)
-    return frame.drop(columns="reasons")
-
-
-def failed_trainings(health: pd.DataFrame) -> dict[int, dict[str, str]]:
-    """Replicate → model → reason, for the trainings that failed."""
-    out: dict[int, dict[str, str]] = {}
-    for row in health[~health["trained"]].itertuples(index=False):
-        out.setdefault(int(row.replicate), {})[str(row.model)] = str(row.reason)
-    return out
-
-
 def over_replicates(
     tables: Mapping[int, pd.DataFrame], columns: Sequence[str], health: pd.DataFrame | None = None
 ) -> pd.DataFrame:
@@ -118,10 +88,8 @@ def over_replicates(
             row[f"{column}_sd"] = float(values.std(ddof=1)) if values.size > 1 else float("nan")
         if health is not None:
             mine = health[health["model"] == model]
-            row["failed trainings"] = int((~mine["trained"]).sum())
-            row["failed replicates"] = ", ".join(
-                str(r) for r in mine[~mine["trained"]]["replicate"]
-            )
+            row["draws standing in for failed trainings"] = int((~mine["trained"]).sum())
+            row["which draws"] = ", ".join(str(r) for r in mine[~mine["trained"]]["replicate"])
         rows.append(row)
     return pd.DataFrame(rows)
 

@@ -144,11 +144,12 @@ def leaderboard(
         for name, tables in (("openloop", openloop), ("complexity", complexity)):
             columns = OPENLOOP if name == "openloop" else COMPLEXITY
             for column in columns:
-                found = [
+                found = [  # over the draws that trained, as the closed-loop columns
                     float(t.set_index("model").loc[model, column])
-                    for t in (tables or {}).values()
+                    for r, t in (tables or {}).items()
                     if model in set(t["model"]) and column in t
-                ]
+                    and model not in (failed or {}).get(r, {})
+                ]  # fmt: skip
                 row[column] = float(np.mean(found)) if found else math.nan
         if reliability is not None and model in set(reliability["model"]):
             mine = reliability.set_index("model").loc[model]

@@ -206,7 +206,8 @@ def _why(ev: _Evaluation, row: Mapping[str, Any], pair: Pair, causes: Sequence[s
     if row["verdict"] == HOLDS:
         return fewer
     notes = [c for c in (fewer, *causes, _failed_note(ev.context, pair)) if c]
-    per = [row.get(f"verdict rep{r}", INCONCLUSIVE) for r in ev.replicates]
+    counted = [r for r in ev.replicates if r in used] or list(ev.replicates)  # the interval's
+    per = [row.get(f"verdict rep{r}", INCONCLUSIVE) for r in counted]
     evidence = row.get("_evidence", "")
     if row["verdict"] == INCONCLUSIVE and evidence:
         if evidence == "no values":
@@ -217,7 +218,7 @@ def _why(ev: _Evaluation, row: Mapping[str, Any], pair: Pair, causes: Sequence[s
             cause = f"{evidence}: no verdict without a spread"
     elif row["verdict"] == INCONCLUSIVE and len(ev.replicates) > 1:
         if len(set(per)) > 1:
-            said = ", ".join(f"rep{r} {v}" for r, v in zip(ev.replicates, per, strict=True))
+            said = ", ".join(f"rep{r} {v}" for r, v in zip(counted, per, strict=True))
             cause = f"the training draws disagree ({said})"
         elif per[0] != INCONCLUSIVE:
             cause = (

@@ -80,7 +80,7 @@ def undisturbed(
 ) -> tuple[pd.DataFrame, list[str]]:
     """Laps at η = 0 per replicate and plant of ``study`` (columns: controllers, cells
     ``laps/runs``), and one line per cell with a failure naming its measured cause.
-    ``failed`` is ``failed_trainings``' replicate → model → reason; ``root`` is the folder the
+    ``failed`` is ``failed_draws``' replicate → model → reason; ``root`` is the folder the
     runs' ``folder`` column is relative to (the repository)."""
     root, seen = Path(root), {}
     at_rest = runs[runs["study"].eq(study) & runs["eta"].astype(float).eq(0.0)]
