@@ -14,6 +14,17 @@ plain MSE over the ETHZ training windows (the loss of SPEC §4.2) and its gradie
 
     python benchmarks/ddm_stall.py results/trainings/ddm/seed0 results/trainings/ddm/seed1 ...
 
+With ``--early MODEL … --seeds N`` it instead retrains each named model entry (e.g. ``ddm`` and
+the tuned ``ddm_tuned`` of ``config/examples/ddm_tuned.yaml``, merged by ``--overlay``) for its
+first ``--epochs`` epochs (2), uncompiled, for seeds ``training.seed`` … + N − 1, and records
+after every step the guard's largest pre-activation and the share of its outputs whose slope σ′
+is below 1e-6: a training whose every guard output saturates has a gradient of exactly zero in
+float32, and Adam's decaying moments never bring it back, so "dead after epoch 2" predicts the
+stalled loss of the whole training at a fraction of its cost:
+
+    python benchmarks/ddm_stall.py --early ddm ddm_tuned --seeds 12 \
+        --overlay config/examples/ddm_tuned.yaml
+
 It reads the training set the workflow builds (`snakemake --cores 2 results/data/DYN-PP-ETHZ.npz`)
 and each folder's ``health.json`` if there is one (whether the training failed, and why).
 """
@@ -104,15 +115,87 @@ def diagnose(folder: Path, data: dict[str, np.ndarray], config: dict) -> None:
         )
 
 
+def early(
+    name: str, spec: dict, data: dict[str, np.ndarray], config: dict, seed: int, epochs: int
+) -> dict[str, object]:
+    """Train ``name`` for ``epochs`` epochs, uncompiled, hooking the guard: whether every guard
+    output is saturated at the end, the step it first was, the largest pre-activation and the
+    training loss per epoch."""
+    import cape.models.training as training
+
+    split = section(config, "data")["split"]
+    windows = TrainingData.from_dataset(
+        data, int(spec["history"]), float(split["train_fraction"]), int(split["seed"])
+    )
+    steps: list[tuple[float, float]] = []
+
+    def hook(module: torch.nn.Module, inputs: tuple, out: torch.Tensor) -> None:
+        if torch.is_grad_enabled():  # a training step, not the validation pass
+            z = out.detach()
+            slope = torch.sigmoid(z) * (1 - torch.sigmoid(z))
+            steps.append((float(z.abs().max()), float((slope < 1e-6).double().mean())))
+
+    build = training.build_model
+
+    def hooked(*args: object, **kwargs: object) -> torch.nn.Module:
+        model = build(*args, **kwargs)
+        model.output.linear.register_forward_hook(hook)
+        return model
+
+    training.build_model = hooked
+    try:
+        result = training.train_model(
+            name, spec, windows, ts=float(section(config, "data")["ts"]), seed=seed,
+            epochs=epochs, progress=False, compile_settings={"enabled": False},
+        )  # fmt: skip
+    finally:
+        training.build_model = build
+    dead = [i for i, (_, share) in enumerate(steps) if share == 1.0]
+    return {
+        "model": name,
+        "seed": seed,
+        "dead": bool(steps) and steps[-1][1] == 1.0,
+        "first dead step": dead[0] if dead else "",
+        "largest |z|": f"{max(z for z, _ in steps):.3g}",
+        "train loss per epoch": ", ".join(f"{e['train_loss']:.3g}" for e in result.losses),
+    }
+
+
+def _merged(config: dict, overlay: Path | None) -> dict:
+    """``config`` with ``overlay`` merged over it as Snakemake's ``--configfile`` does."""
+    if overlay is None:
+        return config
+    import yaml
+
+    from cape.config import validate_config
+
+    def merge(base: dict, over: dict) -> dict:
+        out = dict(base)
+        for key, value in over.items():
+            both = isinstance(value, dict) and isinstance(out.get(key), dict)
+            out[key] = merge(out[key], value) if both else value
+        return out
+
+    return validate_config(merge(config, yaml.safe_load(overlay.read_text())), str(overlay))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("folders", nargs="+", type=Path, help="training folders (model.pt)")
+    parser.add_argument("folders", nargs="*", type=Path, help="training folders (model.pt)")
+    parser.add_argument("--early", nargs="+", metavar="MODEL", help="retrain these entries' start")
+    parser.add_argument("--seeds", type=int, default=6, help="with --early: seeds per model")
+    parser.add_argument("--epochs", type=int, default=2, help="with --early: epochs per seed")
+    parser.add_argument("--overlay", type=Path, help="a config overlay merged over --config")
     parser.add_argument("--data", type=Path, default=REPO / "results/data/DYN-PP-ETHZ.npz")
     parser.add_argument("--config", type=Path, default=REPO / "config/config.yaml")
     args = parser.parse_args(argv)
+    if not args.folders and not args.early:
+        parser.error("give training folders, or --early MODEL …")
+    if args.seeds < 1 or args.epochs < 1:
+        parser.error("--seeds and --epochs: give at least 1")
     torch.set_num_threads(1)
     try:
-        config = load_config(args.config)
+        config = _merged(load_config(args.config), args.overlay)
         if not args.data.is_file():
             raise CapeError(
                 f"{args.data}: missing; build it with `snakemake --cores 2 {args.data}`"
@@ -121,6 +204,19 @@ def main(argv: list[str] | None = None) -> int:
             data = {k: npz[k] for k in npz.files}
         for folder in args.folders:
             diagnose(folder, data, config)
+        first = int(section(config, "training")["seed"])
+        rows = []
+        for name in args.early or []:
+            spec = section(config, "models").get(name)
+            if spec is None:
+                raise CapeError(f"--early {name}: no such model entry (give --overlay?)")
+            for seed in range(first, first + args.seeds):
+                rows.append(early(name, spec, data, config, seed, args.epochs))
+                print(" | ".join(str(v) for v in rows[-1].values()), flush=True)
+        for name in args.early or []:
+            mine = [r for r in rows if r["model"] == name]
+            print(f"{name}: dead after {args.epochs} epochs in "
+                  f"{sum(bool(r['dead']) for r in mine)} of {len(mine)} seeds")  # fmt: skip
     except CapeError as exc:
         print(f"ddm_stall.py: {exc}", file=sys.stderr)
         return 2
