@@ -157,6 +157,7 @@ def early(
         "dead": bool(steps) and steps[-1][1] == 1.0,
         "first dead step": dead[0] if dead else "",
         "largest |z|": f"{max(z for z, _ in steps):.3g}",
+        "saturated at the end": f"{steps[-1][1]:.0%}" if steps else "",
         "train loss per epoch": ", ".join(f"{e['train_loss']:.3g}" for e in result.losses),
     }
 
