@@ -41,6 +41,7 @@ import torch
 
 from cape.config import load_config, section
 from cape.errors import CapeError
+from cape.io import read_npz
 from cape.models.checkpoint import load_model
 from cape.models.training import TrainingData
 from cape.vehicle.params import GROUND_TRUTH
@@ -177,7 +178,13 @@ def _merged(config: dict, overlay: Path | None) -> dict:
             out[key] = merge(out[key], value) if both else value
         return out
 
-    return validate_config(merge(config, yaml.safe_load(overlay.read_text())), str(overlay))
+    try:
+        over = yaml.safe_load(overlay.read_text())
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise CapeError(f"--overlay {overlay}: unreadable ({type(exc).__name__})") from None
+    if not isinstance(over, dict):
+        raise CapeError(f"--overlay {overlay}: not a YAML mapping of config sections")
+    return validate_config(merge(config, over), str(overlay))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -201,8 +208,7 @@ def main(argv: list[str] | None = None) -> int:
             raise CapeError(
                 f"{args.data}: missing; build it with `snakemake --cores 2 {args.data}`"
             )
-        with np.load(args.data) as npz:
-            data = {k: npz[k] for k in npz.files}
+        data = read_npz(args.data)
         for folder in args.folders:
             diagnose(folder, data, config)
         first = int(section(config, "training")["seed"])

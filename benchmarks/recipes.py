@@ -28,6 +28,7 @@ import numpy as np
 from cape.config import load_config, section
 from cape.data.windows import make_windows
 from cape.errors import CapeError
+from cape.io import read_npz
 from cape.models.draws import read_outcome, reliability
 
 REPO = Path(__file__).resolve().parents[1]
@@ -110,8 +111,13 @@ def main(argv: list[str] | None = None) -> int:
         path = args.results / "data" / f"DYN-PP-{data['test_track']}.npz"
         if not path.is_file():
             raise CapeError(f"{path}: missing; build it with `snakemake --cores 2 {path}`")
-        with np.load(path) as npz:
-            test = {k: npz[k] for k in npz.files}
+        test = read_npz(path)
+        unknown = [m for m in args.models if not (args.results / "trainings" / m).is_dir()]
+        if unknown:
+            raise CapeError(
+                f"{', '.join(unknown)}: no trainings under {args.results / 'trainings'}; train "
+                "them first (the snakemake command in this script's docstring)"
+            )
         rows = [summarise(args.results, m, args.seeds, first, test) for m in args.models]
     except CapeError as exc:
         print(f"recipes.py: {exc}", file=sys.stderr)

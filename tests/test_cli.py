@@ -93,3 +93,23 @@ def test_module_entry_point() -> None:
         [sys.executable, "-m", "cape.cli", "--version"], capture_output=True, text=True, check=True
     )
     assert out.stdout.startswith("cape ")
+
+
+@pytest.mark.parametrize("content", [b"", b"not a zip archive", b"PK\x03\x04 truncated"])
+def test_a_data_set_that_is_not_an_npz_is_one_line_and_exit_2(
+    tmp_path: Path, content: bytes
+) -> None:
+    """`cape train --data` of an empty, foreign or truncated file: one line naming the file and
+    the fix, exit 2, no traceback, and the output folder never made."""
+    data = tmp_path / "broken data.npz"
+    data.write_bytes(content)
+    out = tmp_path / "model"
+    done = subprocess.run(
+        [sys.executable, "-m", "cape.cli", "train", "--model", "dpm", "--data", str(data),
+         "--out", str(out)],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    assert "Traceback" not in done.stderr and len(done.stderr.strip().splitlines()) == 1
+    assert f"{data}: not a readable .npz" in done.stderr and "snakemake --cores 2" in done.stderr
+    assert not out.exists()

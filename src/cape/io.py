@@ -147,6 +147,24 @@ def write_text(path: str | os.PathLike[str], text: str) -> None:
     write_bytes(path, text.encode("utf-8"))
 
 
+def read_npz(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
+    """Every array of the ``.npz`` at ``path``, or ``CapeError`` naming the file and the fix
+    (missing, empty, not an npz archive, or damaged)."""
+    path = Path(path)
+    if not path.is_file():
+        raise CapeError(f"{path}: not found; build it with `snakemake --cores 2 {path}`")
+    import zipfile
+
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            return {k: npz[k] for k in npz.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, AttributeError) as exc:
+        raise CapeError(
+            f"{path}: not a readable .npz ({type(exc).__name__}: {exc}); delete it and rebuild "
+            f"it with `snakemake --cores 2 {path}`"
+        ) from None
+
+
 def read_csv(path: str | os.PathLike[str], missing: str, damaged: str) -> Any:
     """``pandas.read_csv(path)``, or one ``CapeError`` naming the file: ``missing`` (its fix)
     when it does not exist, ``damaged`` (what it is not, and the fix) when pandas cannot read

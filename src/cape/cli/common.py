@@ -113,12 +113,9 @@ def _config(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _load_npz(path: str) -> dict[str, Any]:
-    import numpy as np
+    from cape.io import read_npz
 
-    if not Path(path).is_file():
-        raise CapeError(f"{path}: not found; build it with `snakemake --cores 2 {path}`")
-    with np.load(path) as npz:
-        return {k: npz[k] for k in npz.files}
+    return read_npz(path)
 
 
 PROVENANCE_COLUMNS = ("replicate", "weights_sha256")

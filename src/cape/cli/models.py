@@ -75,8 +75,6 @@ def _train_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_train(args: argparse.Namespace) -> None:
     import hashlib
 
-    import numpy as np
-
     from cape.config import section
     from cape.models.kernels import in_effect, pin_before_torch, pin_inductor
 
@@ -115,12 +113,7 @@ def cmd_train(args: argparse.Namespace) -> None:
     data_cfg, train_cfg = section(config, "data"), section(config, "training")
     seed = int(args.seed if args.seed is not None else train_cfg["seed"])
     data_path = Path(args.data)
-    if not data_path.is_file():
-        raise CapeError(
-            f"--data {data_path}: not found; build it with `snakemake --cores 2 {data_path}`"
-        )
-    with np.load(data_path) as npz:
-        dataset = {k: npz[k] for k in npz.files}
+    dataset = _load_npz(str(data_path))
     split = data_cfg["split"]
     data = TrainingData.from_dataset(
         dataset, int(spec["history"]), float(split["train_fraction"]), int(split["seed"])
