@@ -166,19 +166,14 @@ def leaderboard(
                 else f"no value of the primary metric ({label}) in this study's runs of the "
                 "draws that trained"
             )
-            row.update({
-                "effect vs reference": math.nan, "ci95_low": math.nan, "ci95_high": math.nan,
-                "verdict vs reference": NOT_EVALUATED, "draws needed": "",
-                "why": f"{NOT_EVALUATED}: {cause}",
-            })  # fmt: skip
+            row.update(_no_effect(NOT_EVALUATED, cause))
         elif not has_reference:
-            row.update({
-                "effect vs reference": math.nan, "ci95_low": math.nan, "ci95_high": math.nan,
-                "verdict vs reference": NO_REFERENCE, "draws needed": "",
-                "why": f"{NO_REFERENCE}: {reference.upper()} (study.reference_model) has no run "
-                "of the primary metric in this study"
-                + (" whose training worked" if reference in untrained else ""),
-            })  # fmt: skip
+            worked = " whose training worked" if reference in untrained else ""
+            cause = (
+                f"{reference.upper()} (study.reference_model) has no run of the primary metric "
+                f"in this study{worked}"
+            )
+            row.update(_no_effect(NO_REFERENCE, cause))
         else:
             row.update(_against(values[primary], model, reference, power, most_draws, study_draws))
         rows.append(row)
@@ -192,6 +187,14 @@ def leaderboard(
     ranks = [*range(1, int(ranked.sum()) + 1), *[None] * int((~ranked).sum())]
     table.insert(0, "rank", pd.array(ranks, dtype="Int64"))  # unranked: empty
     return table.drop(columns=["_rank"]).reset_index(drop=True)
+
+
+def _no_effect(said: str, cause: str) -> dict[str, object]:
+    """The effect columns of a row with no effect to measure: ``said`` and why."""
+    return {
+        "effect vs reference": math.nan, "ci95_low": math.nan, "ci95_high": math.nan,
+        "verdict vs reference": said, "draws needed": "", "why": f"{said}: {cause}",
+    }  # fmt: skip
 
 
 def _against(
