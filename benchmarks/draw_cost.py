@@ -22,7 +22,7 @@ import json
 from collections import defaultdict
 from pathlib import Path
 
-from cape.study.grid import RunId
+from cape.layout.runs import RunId
 
 
 def benchmark_cpu(folder: Path) -> dict[str, float]:

@@ -18,7 +18,7 @@ import json
 from collections import defaultdict
 from pathlib import Path
 
-from cape.study.grid import RunId
+from cape.layout.runs import RunId
 
 PHASES = ("startup", "config", "build", "lap", "write")
 

@@ -26,7 +26,7 @@ def test_a_rollout_process_imports_neither_pytorch_nor_pandas() -> None:
         "import sys, cape.cli, cape.closedloop.setup, cape.controllers.registry as r, cape.io;"
         "[r.controller_class(n) for n in ('pid', 'rise', 'nmpc', 'anmpc', 'rnmpc')];"
         "import cape.models.network, cape.models.trained;"
-        "import cape.study.record;"
+        "import cape.layout.record;"
         "print(sorted(m for m in ('torch', 'pandas', 'scipy.interpolate', 'matplotlib', 'pyarrow')"
         " if m in sys.modules))"
     )

@@ -71,8 +71,12 @@ def test_missing_file_and_bad_json_are_clear(tmp_path: Path) -> None:
         config_from_args(None, "{nope")
 
 
-def test_schema_and_default_config_live_where_the_workflow_expects() -> None:
-    assert (REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml").is_file()
+def test_the_schemas_are_package_data_and_the_config_is_in_the_checkout() -> None:
+    from cape.schemas import CONFIG, METRICS, load_schema
+
+    assert load_schema(CONFIG)["type"] == "object"  # read from the package, not the checkout
+    assert "failure" in load_schema(METRICS)["properties"]
+    assert not (REPO_ROOT / "workflow" / "schemas").exists()  # one copy of each schema
     assert (REPO_ROOT / "config" / "config.yaml").is_file()
 
 

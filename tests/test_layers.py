@@ -1,8 +1,8 @@
 """The code base's floors: no module imports a package above its own (docs/architecture.md).
 
-cli → study → plots → closedloop → controllers → models → data → tracks → vehicle → the
-bottom floor's helpers (errors, io, integrity, buffered, compiled, locks, config, registry,
-paper, tables): the order in which a run is built, each floor using only the ones below.
+cli → study → plots → closedloop → controllers → models → data → tracks → vehicle → config,
+registry, compiled → layout (every name and path) → the bottom floor's helpers (errors, io,
+integrity, schemas, …): the order in which a run is built, each floor using only the ones below.
 """
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ from pathlib import Path
 from cape.config import REPO_ROOT
 
 FLOORS = [
-    ("errors", "io", "integrity", "buffered", "compiled", "locks", "config", "registry", "paper",
-     "tables", "parquet", "interrupt", "bytecode"),
-    ("vehicle",), ("tracks",), ("data",), ("models",), ("controllers",), ("closedloop",),
-    ("plots",), ("study",), ("cli",),
+    ("errors", "io", "integrity", "buffered", "locks", "paper", "tables", "parquet", "interrupt",
+     "bytecode", "schemas"),
+    ("layout",), ("config", "registry", "compiled"), ("vehicle",), ("tracks",), ("data",),
+    ("models",), ("controllers",), ("closedloop",), ("plots",), ("study",), ("cli",),
 ]  # fmt: skip
 LEVEL = {name: level for level, names in enumerate(FLOORS) for name in names}
 

@@ -21,7 +21,8 @@ import yaml
 
 from cape.config import REPO_ROOT
 from cape.integrity import sealed_arrays
-from cape.study.grid import RUN_FILES
+from cape.layout.runs import RUN_FILES
+from cape.schemas import CONFIG, METRICS, load_schema
 from cape.tracks.raceline import build_raceline
 from cape.tracks.track import load_track
 from cape.vehicle.params import ACTUATOR_LIMITS, GROUND_TRUTH
@@ -140,13 +141,10 @@ def test_rollout_replaces_its_own_earlier_output(setup: dict, tmp_path: Path) ->
 # --- 5, 10. a run's files are checked before they are aggregated ------------------------------
 def aggregate(setup: dict, tmp_path: Path, studies: dict) -> subprocess.CompletedProcess:
     cfg = {
-        "study": {
-            "seeds": 1,
-            "studies": studies,
-            "internal_controllers": [],
-            "order": list(studies),
-        },
+        "study": {"seeds": 1, "studies": studies},
         "disturbances": {"eta": ["0"]},
+        "controllers": {"pid": {}},
+        "training": {"replicates": 1},
     }
     return cape(
         "aggregate",
@@ -223,8 +221,10 @@ def test_a_damaged_or_edited_run_stops_the_aggregation(
 
     folder = _damaged(a_run, tmp_path, edit)
     cfg = {
-        "study": {"seeds": 1, "studies": TRUTH, "internal_controllers": [], "order": ["truth"]},
+        "study": {"seeds": 1, "studies": TRUTH},
         "disturbances": {"eta": ["0"]},
+        "controllers": {"pid": {}},
+        "training": {"replicates": 1},
     }
     out = tmp_path / "out"
     code = main(
@@ -277,8 +277,10 @@ def test_disk_full_is_one_message_and_nothing_half_written(
     full = tmp_path / "full"
     full.mkdir()
     cfg = {
-        "study": {"seeds": 1, "studies": TRUTH, "internal_controllers": [], "order": ["truth"]},
+        "study": {"seeds": 1, "studies": TRUTH},
         "disturbances": {"eta": ["0"]},
+        "controllers": {"pid": {}},
+        "training": {"replicates": 1},
     }
     aggregate_args = [
         "cape",
@@ -382,7 +384,8 @@ def test_a_run_is_tied_to_its_replicates_networks(
     models = tmp_path / "models"
     folder = models / "rep0" / "dpm"
     config = ["--config", str(setup["config"])]
-    train = ["train", "--model", "dpm", "--data", str(data), "--out", str(folder), "--epochs", "1"]
+    train = ["train", "--model", "dpm", "--data", str(data), "--out", str(folder), "--epochs", "1",
+             "--replicate", "0"]  # fmt: skip
     assert main([*train, *config]) == 0
     assert main(["export-network", "--model", f"dpm={folder}", *config]) == 0
     runs = tmp_path / "runs"
@@ -440,20 +443,21 @@ def test_a_model_table_is_tied_to_its_replicates_networks(
                     "--out", str(md), *config)  # fmt: skip
         assert made.returncode == 0, made.stderr
         assert "weights_sha256" not in md.read_text()
-        assert read_replicate_tables(str(csv), models)[0]["replicate"].tolist() == [0]
+        assert read_replicate_tables([0], str(csv), models)[0]["replicate"].tolist() == [0]
         misfiled = cape(*command, "--model", f"dpm={models / 'rep1' / 'dpm'}", "--out", str(csv),
                         *config)  # fmt: skip
         assert misfiled.returncode == 0, misfiled.stderr
         with pytest.raises(CapeError, match="computed from replicate 1's network") as refused:
-            read_replicate_tables(str(csv), models)
+            read_replicate_tables([0], str(csv), models)
         assert str(csv) in str(refused.value) and f"snakemake --cores 2 {csv}" in str(refused.value)
     retrain = ["train", "--model", "dpm", "--data", str(train_data), "--out",
-               str(models / "rep0" / "dpm"), "--epochs", "1", "--seed", "7", *config]  # fmt: skip
+               str(models / "rep0" / "dpm"), "--replicate", "0", "--epochs", "1", "--seed", "7",
+               *config]  # fmt: skip
     assert cape(*openloop, "--model", f"dpm={models / 'rep0' / 'dpm'}", "--out",
                 str(tables / "table04_openloop_rmse.csv"), *config).returncode == 0  # fmt: skip
     assert cape(*retrain).returncode == 0
     with pytest.raises(CapeError, match=r"replicate 0's is .*rep0/dpm .*stale"):
-        read_replicate_tables(str(tables / "table04_openloop_rmse.csv"), models)
+        read_replicate_tables([0], str(tables / "table04_openloop_rmse.csv"), models)
 
 
 def test_the_kernel_environment_is_part_of_a_trainings_identity(
@@ -665,18 +669,16 @@ def test_cape_refuses_a_study_name_that_is_not_an_identifier(setup: dict, tmp_pa
 
 
 def test_the_name_pattern_is_the_schemas(config: dict) -> None:
-    from cape.study.grid import NAME_PATTERN
+    from cape.layout.names import NAME_PATTERN
 
-    schema = yaml.safe_load((REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml").read_text())
+    schema = load_schema(CONFIG)
     assert schema["$defs"]["name"]["pattern"] == NAME_PATTERN
 
 
 def test_the_failure_reasons_are_the_schemas() -> None:
     from cape.closedloop.rollout import FAILURES
 
-    schema = yaml.safe_load(
-        (REPO_ROOT / "workflow" / "schemas" / "metrics.schema.yaml").read_text()
-    )
+    schema = load_schema(METRICS)
     assert set(schema["properties"]["failure"]["enum"]) == {None, *FAILURES}
 
 

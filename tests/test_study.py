@@ -13,10 +13,11 @@ import pytest
 
 from cape.cli import main
 from cape.errors import CapeError
+from cape.layout.record import write_run_files, write_timing
+from cape.layout.runs import RunId
 from cape.study.aggregate import collect_runs, mean_ci, summarise
 from cape.study.glance import at_a_glance
-from cape.study.grid import RunId, canonical, study_runs
-from cape.study.record import write_run_files, write_timing
+from cape.study.grid import canonical, study_runs
 from cape.study.scorecard import evaluate_claims
 from cape.study.tables import (
     best_controller,
@@ -31,7 +32,7 @@ STUDIES = {"learned": {"plants": ["epm"]}, "truth": {"plants": ["truth"], "inter
 def _write_run(root: Path, study: str, plant: str, internal: str, controller: str, eta: str,
                seed: int, success: bool, lap: float | None, ey: float,
                replicate: int = 0) -> Path:  # fmt: skip
-    """A run's folder as `cape rollout` writes it (cape.study.record), with these metrics."""
+    """A run's folder as `cape rollout` writes it (cape.layout.record), with these metrics."""
     folder = RunId(study, plant, internal, controller, eta, seed, replicate).folder(root)
     folder.mkdir(parents=True)
     metrics = {
@@ -275,18 +276,17 @@ def test_bars_centre_the_models_a_controller_has_on_its_tick() -> None:
 
 def test_the_aggregation_reads_a_shared_run_where_the_workflow_computed_it(tmp_path: Path) -> None:
     """A run two studies share is computed in the folder of the config's first study that has
-    it. The rule passes the config as JSON with sorted keys (ablation before learned), so the
-    order travels as a list; the full study failed here when it did not."""
+    it: `cape aggregate` builds the grid with the rules' function (cape.study.grid.study_grid)
+    from the sections the rule passes, in the config's order (learned before ablation)."""
     studies = {"learned": {"plants": ["epm"], "controllers": ["nmpc"]},
                "ablation": {"plants": ["epm"], "internal": ["epm", "truth"],
                             "controllers": ["nmpc"]}}  # fmt: skip
-    config = {"study": {"seeds": 1, "studies": studies, "internal_controllers": ["nmpc"],
-                        "order": list(studies)},
-              "disturbances": {"eta": ["0"]}}  # fmt: skip
+    config = {"study": {"seeds": 1, "studies": studies}, "disturbances": {"eta": ["0"]},
+              "controllers": {"nmpc": {}}, "training": {"replicates": 1}}  # fmt: skip
     _write_run(tmp_path, "learned", "epm", "epm", "nmpc", "0", 0, True, 7.4, 0.02)
     _write_run(tmp_path, "ablation", "epm", "truth", "nmpc", "0", 0, True, 7.5, 0.03)
     out = tmp_path / "runs.parquet"
-    as_the_rule_passes_it = json.dumps(config, sort_keys=True)
+    as_the_rule_passes_it = json.dumps(config)  # common.smk's grid_config_json
     main(["aggregate", "--root", str(tmp_path), "--out", str(out), "--summary",
           str(tmp_path / "summary.parquet"), "--config-json", as_the_rule_passes_it])  # fmt: skip
     runs = pd.read_parquet(out)

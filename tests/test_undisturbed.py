@@ -10,9 +10,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from cape.layout.record import write_run_files, write_timing
+from cape.layout.runs import RunId
 from cape.study.aggregate import collect_runs
-from cape.study.grid import RunId
-from cape.study.record import write_run_files, write_timing
 from cape.study.undisturbed import slip_extent, undisturbed
 
 STUDIES = {"learned": {"plants": ["dpm", "ddm"]}, "truth": {"plants": ["truth"]}}

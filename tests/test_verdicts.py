@@ -11,10 +11,11 @@ import pandas as pd
 import pytest
 from scipy import stats
 
+from cape.layout.runs import RunId
 from cape.models.health import outliers, training_checks
 from cape.study.calibration import bootstrap_two_level, exclusion_rate, nested, t_over_draws
 from cape.study.claims import ClosedLoopClaim, Context, Pair, controllers
-from cape.study.grid import RunId, canonical, study_runs
+from cape.study.grid import canonical, study_runs
 from cape.study.scorecard import evaluate_claims, presented
 from cape.study.verdicts import (
     CONTRADICTED,

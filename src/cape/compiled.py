@@ -26,6 +26,7 @@ import casadi as ca
 from cape.errors import CapeError
 from cape.integrity import check_sidecar, file_digest, sidecar
 from cape.io import write_text
+from cape.layout.paths import SOLVERS
 
 _warned = False
 
@@ -63,7 +64,7 @@ def make_nlpsol(
         _warn_once(f"compiler {compiler!r} not found; NLP functions run uncompiled (slower)")
         return solver, None
     flags = [str(f) for f in compile_settings.get("flags", ["-O1"])]
-    cache = Path(str(compile_settings.get("cache", "results/solvers")))
+    cache = Path(str(compile_settings.get("cache", SOLVERS)))
     library = compiled_library(solver, plugin, cache, compiler, flags)
     return ca.nlpsol(name, plugin, str(library), opts), library
 
@@ -128,7 +129,7 @@ def _fingerprinted(
     if shutil.which(compiler) is None:
         return None
     flags = [str(f) for f in compile_settings.get("flags", ["-O1"])]
-    cache = Path(str(compile_settings.get("cache", "results/solvers")))
+    cache = Path(str(compile_settings.get("cache", SOLVERS)))
     key = hashlib.sha256(" ".join([fingerprint, ca.__version__, compiler, *flags]).encode())
     return cache / f"{prefix}_{key.hexdigest()[:16]}.so"
 

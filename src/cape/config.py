@@ -1,23 +1,23 @@
 """Loading and checking the study configuration.
 
 ``config/config.yaml`` is the one place the study's numbers live. Snakemake validates it
-against ``workflow/schemas/config.schema.yaml`` at start-up; the ``cape`` command does the
-same when run by hand. Rules hand each command only the sections it needs (as JSON), so a
-change in one section reruns only the jobs that read it.
+against the schema shipped in the package (``cape/schemas/config.schema.yaml``) at start-up;
+the ``cape`` command does the same when run by hand. Rules hand each command only the
+sections it needs (as JSON), so a change in one section reruns only the jobs that read it.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import sys
 from pathlib import Path
 from typing import Any
 
+from cape import schemas
 from cape.errors import CapeError
+from cape.layout.names import TRUTH, plant_names
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
-SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
 DEFAULT_CONFIG = Path("config") / "config.yaml"
 
 
@@ -118,16 +118,10 @@ def _check_eta_labels(config: dict[str, Any], source: str) -> None:
                 )
 
 
-def plant_names(config: dict[str, Any]) -> list[str]:
-    """Every plant (and internal model) name: the ground truth, each model, its fixed variant."""
-    models = list(config.get("models", {}))
-    return ["truth", *models, *(f"{m}-fixed" for m in models)]
-
-
 def _check_grid(config: dict[str, Any], source: str) -> None:
     """Every name of the study grid must exist in the config: an unknown one is an error here,
     not a study that silently lacks it (or reuses stale results)."""
-    plants = plant_names(config)
+    plants = plant_names(config.get("models", {}))
     controllers = list(config.get("controllers", {}))
     for study, grid in config["study"]["studies"].items():
         where = f"study.studies.{study}"
@@ -171,7 +165,7 @@ def _check_grid(config: dict[str, Any], source: str) -> None:
     ground_truth = config["study"].get("ground_truth")
     if ground_truth is not None and paper is not None:  # no paper's study: no scorecard reads it
         grid = config["study"]["studies"].get(ground_truth)
-        if grid is None or list(grid.get("plants", [])) != ["truth"]:
+        if grid is None or list(grid.get("plants", [])) != [TRUTH]:
             raise CapeError(
                 f"{source}: field `study.ground_truth` names {ground_truth!r}, which is not a "
                 "study of `study.studies` whose plants are [truth]; name the ground-truth study, "
@@ -185,25 +179,6 @@ def _check_grid(config: dict[str, Any], source: str) -> None:
                     "against the paper's study, but `study.paper` is null; name that study in "
                     "`study.paper`"
                 )
-
-
-def _jsonschema() -> Any:
-    """``jsonschema``, imported without its optional IRI format checker.
-
-    That checker (``rfc3987_syntax``, which Jupyter's dependencies install) compiles 38 grammars
-    when it is imported: some 5 s in every ``cape`` process, which would be most of a rollout
-    job. CAPE's schema checks no IRI format, so the import is skipped; a process that imports
-    ``jsonschema`` first keeps whatever it loaded.
-    """
-    if "jsonschema" not in sys.modules and "rfc3987_syntax" not in sys.modules:
-        sys.modules["rfc3987_syntax"] = None  # type: ignore[assignment]  # import → ImportError
-        try:
-            import jsonschema
-        finally:
-            del sys.modules["rfc3987_syntax"]
-    import jsonschema
-
-    return jsonschema
 
 
 RENAMED = {("study", "real_car"): "ground_truth"}
@@ -223,13 +198,10 @@ def _refuse_renamed(config: dict[str, Any], source: str) -> None:
 
 def validate_config(config: dict[str, Any], source: str = "config") -> dict[str, Any]:
     """Validate ``config`` against the schema (filling defaults) and the cross-field rules."""
-    import yaml
-
     _refuse_renamed(config, source)
-    jsonschema = _jsonschema()
-    schema = yaml.safe_load(SCHEMA_PATH.read_text())
+    schema = schemas.load_schema(schemas.CONFIG)
     _fill_defaults(config, schema)
-    validator = jsonschema.Draft202012Validator(schema)
+    validator = schemas.validator(schema)
     errors = sorted(validator.iter_errors(config), key=lambda e: list(e.absolute_path))
     if errors:
         first = errors[0]
@@ -239,7 +211,7 @@ def validate_config(config: dict[str, Any], source: str = "config") -> dict[str,
         hint = f" ({' '.join(what.split())})" if what and first.validator == "pattern" else ""
         raise CapeError(
             f"{source}: field `{field}`: {first.message}{hint}{more}. "
-            f"Fix the value; {SCHEMA_PATH.relative_to(REPO_ROOT)} describes every key."
+            f"Fix the value; {schemas.shown(schemas.CONFIG)} describes every key."
         )
     _check_finite(config, source)
     check_consistency(config, source)
@@ -252,7 +224,7 @@ def _check_finite(value: Any, source: str, where: str = "") -> None:
     if isinstance(value, float) and not math.isfinite(value):
         raise CapeError(
             f"{source}: field `{where}` is {value}, not a finite number; give a finite value "
-            f"({SCHEMA_PATH.relative_to(REPO_ROOT)} describes every key)"
+            f"({schemas.shown(schemas.CONFIG)} describes every key)"
         )
     if isinstance(value, dict):
         for key, item in value.items():

@@ -8,7 +8,6 @@ import sys
 from snakemake.io import report as in_report  # `report(` opening a line is Snakemake's directive
 
 from cape.bytecode import precompile_package
-from cape.closedloop.model_names import models_read
 from cape.config import validate_config
 from cape.controllers import controller_class
 from cape.closedloop.disturbances import validate_sources
@@ -16,7 +15,10 @@ from cape.controllers.base import validate_settings
 from cape.locks import clear_stale_locks
 from cape.models.draws import choose_training, default_max_trainings, read_outcome
 from cape.models.registry import model_class
-from cape.study.grid import RunId, canonical, check_grid_size, study_runs
+from cape.layout import paths
+from cape.layout.names import TRUTH, PlantName, models_read, plant_names
+from cape.layout.runs import RunId
+from cape.study.grid import study_grid
 from cape.study.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS
 from cape.study.stale import missing_runs
 from cape.tracks.manifest import BAYESRACE_FILES
@@ -32,7 +34,7 @@ if workflow.is_main_process:
     precompile_package()
 
 SOURCE = "config (config/config.yaml and any --configfile)"
-# the schema (workflow/schemas/config.schema.yaml, defaults filled in) and the cross-field
+# the schema (shipped in the package: cape/schemas/config.schema.yaml, defaults filled in) and the cross-field
 # rules, each problem one message naming the key and the fix
 validate_config(config, SOURCE)
 for _name, _entry in config["controllers"].items():  # each controller's own keys
@@ -50,14 +52,14 @@ MODELS = list(config["models"])
 REPLICATES = int(config["training"]["replicates"])  # trained networks of every model (SPEC §4)
 
 
-PLANT_NAMES = ["truth", *MODELS, *(f"{m}-fixed" for m in MODELS)]
+PLANT_NAMES = plant_names(MODELS)
 ETAS = config["disturbances"]["eta"]
 
 # Two scopes of the study's summaries: the default target's (`results/`: replicate 0, the
 # single-draw study, ~1 h on two cores) and the `replicates` target's (`results/replicates/`:
 # every training replicate of SPEC §4, about twice that), each with its runs.parquet, table 8,
 # RESULTS.md and scorecard notebook.
-SCOPES = {"results": [0], "results/replicates": list(range(REPLICATES))}
+SCOPES = {paths.DEFAULT_SCOPE: [0], paths.REPLICATES_SCOPE: list(range(REPLICATES))}
 
 
 wildcard_constraints:
@@ -102,12 +104,9 @@ def training_seed(k):
 
 
 # A model's trainings, by seed; its draws are made from them (cape.models.draws)
-TRAINING_FOLDER = "results/trainings/{model}/seed{training_seed}"
+TRAINING_FOLDER = paths.TRAINING
+MODEL_FOLDER = paths.MODEL  # a model's draw
 MAX_TRAININGS = int(config["training"].get("max_trainings") or default_max_trainings(REPLICATES))
-
-
-def training_dir(model, seed):
-    return TRAINING_FOLDER.format(model=model, training_seed=seed)
 
 
 def health_config_json(model):
@@ -131,9 +130,9 @@ def draw_inputs(wildcards):
         return read_outcome(path)
 
     choice = choose_training(int(wildcards.replicate), MAX_TRAININGS, outcome)
-    chosen = training_dir(model, choice.consulted[choice.index].seed)
+    chosen = paths.training_dir(model, choice.consulted[choice.index].seed)
     return {
-        "health": [f"{training_dir(model, o.seed)}/health.json" for o in choice.consulted],
+        "health": [f"{paths.training_dir(model, o.seed)}/health.json" for o in choice.consulted],
         "weights": f"{chosen}/model.pt",
         "meta": f"{chosen}/meta.json",
         "losses": f"{chosen}/loss.csv",
@@ -159,21 +158,16 @@ def model_config_json(model, seed):
     )
 
 
-def model_dir(model, replicate=0):
-    """The folder of one trained network: a model's training replicate (SPEC §4)."""
-    return f"results/models/rep{replicate}/{model}"
-
-
 def trained_models(replicate=0):
     """Weights, metadata and loss curve of every configured model's replicate."""
     return [
-        f"{model_dir(m, replicate)}/{f}" for m in MODELS for f in ("model.pt", "meta.json", "loss.csv")
+        f"{paths.model_dir(m, replicate)}/{f}" for m in MODELS for f in ("model.pt", "meta.json", "loss.csv")
     ]
 
 
 def model_args(replicate=0):
     """``--model NAME=DIR`` for every configured model's replicate."""
-    return " ".join(f"--model {shlex.quote(f'{m}={model_dir(m, replicate)}')}" for m in MODELS)
+    return " ".join(f"--model {shlex.quote(f'{m}={paths.model_dir(m, replicate)}')}" for m in MODELS)
 
 
 def training_data_arg(input):
@@ -181,19 +175,18 @@ def training_data_arg(input):
     return f"--training-data {shlex.quote(input.training_data)}" if "training_data" in input.keys() else ""
 
 
-def model_folder_args(input):
-    """``--model NAME=DIR`` for each trained model a run or solver rule declares as input (its
-    plant's and internal model's meta.json): the command reads the models the rule names."""
-    folders = {}
-    for key, path in input.items():
-        if key.endswith("_meta"):
-            folder = os.path.dirname(path)
-            folders[os.path.basename(folder)] = folder
-    return " ".join(f"--model {shlex.quote(f'{name}={folder}')}" for name, folder in sorted(folders.items()))
+def model_folder_args(wildcards, names):
+    """``--model NAME=DIR`` for each trained model that the plants or internal models
+    ``names`` read, of the rule's replicate: the command reads the models the rule declares."""
+    replicate = int(wildcards.replicate)
+    models = {m for name in names if (m := PlantName.parse(name).model) is not None}
+    return " ".join(
+        f"--model {shlex.quote(f'{m}={paths.model_dir(m, replicate)}')}" for m in sorted(models)
+    )
 
 
 def raceline_path():
-    return f"results/raceline/{config['reference']['track']}.npz"
+    return paths.raceline(config["reference"]["track"])
 
 
 def uses_internal_model(controller):
@@ -205,12 +198,12 @@ def model_inputs(role, name, replicate):
     """The files a plant or internal model ``name`` of training replicate ``replicate`` is read
     from: its exported network (a learned Φ) or its frozen Φ, and its meta.json; nothing for
     the ground truth."""
-    if name == "truth":
+    plant = PlantName.parse(name)
+    if plant.is_truth:
         return {}
-    model = name.removesuffix("-fixed")
-    folder = model_dir(model, replicate)
+    folder = paths.model_dir(plant.model, replicate)
     inputs = {f"{role}_meta": f"{folder}/meta.json"}
-    if model == name:
+    if plant.kind == "learned":
         inputs[f"{role}_network"] = f"{folder}/network.npz"
     else:
         inputs[f"{role}_frozen"] = f"{folder}/frozen_phi.json"
@@ -226,8 +219,14 @@ def compiles_solver(controller):
 def solver_path(controller, internal, replicate):
     """A controller's solver for an internal model of one replicate (the true model's is
     replicate 0's for every replicate: no trained network enters it)."""
-    replicate = 0 if internal == "truth" else replicate
-    return f"results/solvers/rep{replicate}/{controller}/{internal}.json"
+    return paths.solver(controller, internal, 0 if internal == TRUTH else replicate)
+
+
+def rollout_models(wildcards):
+    """The plant and, for a controller with one, the internal model a run reads."""
+    if uses_internal_model(wildcards.controller):
+        return [wildcards.plant, wildcards.internal]
+    return [wildcards.plant]
 
 
 def rollout_inputs(wildcards):
@@ -235,8 +234,8 @@ def rollout_inputs(wildcards):
     the run's replicate, and the controller's compiled solver for that internal model."""
     replicate = int(wildcards.replicate)
     inputs = {"raceline": raceline_path(), **model_inputs("plant", wildcards.plant, replicate)}
-    if wildcards.plant != "truth":  # its states bound a learned plant (SPEC §5.3)
-        inputs["training_data"] = dataset_path(config["data"]["train_track"])
+    if wildcards.plant != TRUTH:  # its states bound a learned plant (SPEC §5.3)
+        inputs["training_data"] = paths.dataset(config["data"]["train_track"])
     if uses_internal_model(wildcards.controller):
         inputs.update(model_inputs("internal", wildcards.internal, replicate))
     if compiles_solver(wildcards.controller):
@@ -276,32 +275,26 @@ def export_config_json():
     return json.dumps({"rollout": {"compile": config["rollout"]["compile"]}}, sort_keys=True)
 
 
-def grid_runs():
-    """Every run of the grid (cape.study.grid), each with the run that computes it (a run asked
-    for by two studies, the ablation's diagonal, is computed once)."""
-    check_grid_size(config["study"], ETAS, uses_internal_model, SOURCE, REPLICATES)  # first
-    runs = study_runs(config["study"], ETAS, uses_internal_model, REPLICATES)
-    return canonical(runs)
-
-
-GRID = grid_runs()
+# Every run of the grid, each with the run that computes it (a run asked for by two studies,
+# the ablation's diagonal, is computed once): cape.study.grid, which `cape aggregate` also calls
+GRID = study_grid(config, SOURCE)
 RUN_FOLDER = str(RunId.wildcards().folder())  # a run's files, its log and its figure, as
-RUN_LOG = str(RunId.wildcards().folder("results/logs/runs"))  # the rules' wildcard patterns
+RUN_LOG = str(RunId.wildcards().folder(paths.log("runs")))  # the rules' wildcard patterns
 RUN_STEM = RunId.wildcards().stem()
 
 
-def aggregate_config_json(replicates):
-    """What the aggregation reads: the grid (studies, seeds, η, the replicates to read) and which
-    controllers have an internal model, so that it reads every study's runs where they were
-    computed."""
-    study = dict(config["study"])
-    study["replicates"] = REPLICATES
-    study["read_replicates"] = sorted(replicates)
-    study["internal_controllers"] = sorted(c for c in config["controllers"] if uses_internal_model(c))
-    # the studies' order decides which folder computes a shared run (cape.study.grid.canonical);
-    # sort_keys would reorder the mapping, so the order travels as a list
-    study["order"] = list(config["study"]["studies"])
-    return json.dumps({"study": study, "disturbances": {"eta": ETAS}}, sort_keys=True)
+def grid_config_json():
+    """What cape.study.grid.study_grid reads, for `cape aggregate` to build the same grid: the
+    study section, η, the number of draws and the controllers. In the config's order, not
+    sorted: the studies' order decides which folder computes a shared run."""
+    return json.dumps(
+        {
+            "study": config["study"],
+            "disturbances": {"eta": ETAS},
+            "training": {"replicates": REPLICATES},
+            "controllers": config["controllers"],
+        }
+    )
 
 
 def rollout_targets(replicates=None):
@@ -386,24 +379,18 @@ def scorecard_inputs(wildcards):
     models' meta.json and loss.csv of each of the scope's replicates."""
     replicates = SCOPES[wildcards.scope]
     return {
-        "complexity": [f"results/tables/rep{r}/table01_model_complexity.csv" for r in replicates],
-        "openloop": [f"results/tables/rep{r}/table04_openloop_rmse.csv" for r in replicates],
+        "complexity": [paths.replicate_table(r, "table01_model_complexity") for r in replicates],
+        "openloop": [paths.replicate_table(r, "table04_openloop_rmse") for r in replicates],
         "models": [path for r in replicates for path in trained_models(r) if not path.endswith(".pt")],
     }
 
 
-def scorecard_params(wildcards, input):
-    """The scorecard notebook's parameters: where its inputs and outputs are."""
-    paths = {
-        "runs_path": f"{wildcards.scope}/study/runs.parquet",
-        "complexity_paths": ",".join(input.complexity),
-        "openloop_paths": ",".join(input.openloop),
-        "model_root": "results/models",
-        "table_dir": f"{wildcards.scope}/tables",
-        "figure_dir": f"{wildcards.scope}/figures",
-        "glance_path": f"{wildcards.scope}/RESULTS.md",
-    }
-    return " ".join(f"-r {name} {shlex.quote(value)}" for name, value in paths.items())
+def papermill_args(**parameters):
+    """``-r NAME VALUE`` for each of a notebook's parameters (lists joined by commas), quoted."""
+    def text(value):
+        return ",".join(map(str, value)) if isinstance(value, (list, tuple)) else str(value)
+
+    return " ".join(f"-r {name} {shlex.quote(text(value))}" for name, value in parameters.items())
 
 
 def job_outputs(name, **wildcards):
@@ -463,13 +450,14 @@ def study_targets():
     """Every table, figure and executed notebook of the default target's study, and the
     aggregation they read: per study, the notebook of its kind and the failure map; the set-up
     notebook; the scorecard when the paper's study is in the grid (its claims are about it)."""
-    targets = job_outputs("aggregate", scope="results") + job_outputs("notebook_setup")
+    scope = paths.DEFAULT_SCOPE
+    targets = job_outputs("aggregate", scope=scope) + job_outputs("notebook_setup")
     for study, grid in STUDIES.items():
         kind = grid.get("kind", "closed_loop")
         targets += job_outputs(f"notebook_{kind}", study=study)
         targets += job_outputs("notebook_failures", study=study)
     if config["study"].get("paper") in STUDIES:
-        targets += job_outputs("notebook_scorecard", scope="results")
+        targets += job_outputs("notebook_scorecard", scope=scope)
     return targets
 
 
@@ -485,14 +473,10 @@ def replicate_targets():
         *model_outputs(range(REPLICATES)),
         *solver_outputs(runs),
         *run_outputs(runs),
-        *job_outputs("aggregate", scope="results"),
-        *job_outputs("aggregate", scope="results/replicates"),
-        *job_outputs("notebook_scorecard", scope="results/replicates"),
+        *job_outputs("aggregate", scope=paths.DEFAULT_SCOPE),
+        *job_outputs("aggregate", scope=paths.REPLICATES_SCOPE),
+        *job_outputs("notebook_scorecard", scope=paths.REPLICATES_SCOPE),
     ]
-
-
-def dataset_path(track):
-    return f"results/data/DYN-PP-{track}.npz"
 
 
 def all_targets():

@@ -5,14 +5,14 @@ rule dataset:
     input:
         track_files(),
     output:
-        "results/data/DYN-PP-{track}.npz",
+        paths.DATASET,
     params:
         cfg=lambda wildcards: config_json("tracks", "data"),
     conda:
         CAPE_ENV
     log:
-        "results/logs/data/{track}.log",
+        paths.log("data", "{track}.log"),
     benchmark:
-        "results/benchmarks/data/{track}.tsv"
+        paths.benchmark("data", "{track}.tsv")
     shell:
         "cape data --track {wildcards.track} --out {output:q} --config-json {params.cfg:q} > {log:q} 2>&1"

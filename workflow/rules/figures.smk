@@ -4,17 +4,17 @@
 rule figure_tracks:
     input:
         track_files(),
-        data=[dataset_path(t) for t in DATA_TRACKS],
+        data=[paths.dataset(t) for t in DATA_TRACKS],
     output:
-        pdf="results/figures/tracks_and_data.pdf",
-        png="results/figures/tracks_and_data.png",
+        pdf=paths.figures("tracks_and_data.pdf"),
+        png=paths.figures("tracks_and_data.png"),
     params:
-        data=" ".join(f"--data {shlex.quote(f'{t}={dataset_path(t)}')}" for t in DATA_TRACKS),
+        data=" ".join(f"--data {shlex.quote(f'{t}={paths.dataset(t)}')}" for t in DATA_TRACKS),
         cfg=lambda wildcards: config_json("tracks", "data"),
     conda:
         CAPE_ENV
     log:
-        "results/logs/figures/tracks_and_data.log",
+        paths.log("figures", "tracks_and_data.log"),
     shell:
         "cape plot-tracks {params.data} --out {output.pdf:q} --out {output.png:q}"
         " --config-json {params.cfg:q} > {log:q} 2>&1"

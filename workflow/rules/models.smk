@@ -6,7 +6,7 @@ rule train:
     """One training of a model: its k-th has seed training.seed + k (SPEC §4). Whether it
     works is its health check's; which trainings become draws, the draw rule's."""
     input:
-        data=dataset_path(config["data"]["train_track"]),
+        data=paths.dataset(config["data"]["train_track"]),
     output:
         weights=f"{TRAINING_FOLDER}/model.pt",
         meta=f"{TRAINING_FOLDER}/meta.json",
@@ -26,9 +26,9 @@ rule train:
     conda:
         CAPE_ENV
     log:
-        "results/logs/train/{model}/seed{training_seed}.log",
+        paths.log("train", "{model}", "seed{training_seed}.log"),
     benchmark:
-        "results/benchmarks/train/{model}/seed{training_seed}.tsv"
+        paths.benchmark("train", "{model}", "seed{training_seed}.tsv")
     shell:
         "cape train --model {wildcards.model} --seed {wildcards.training_seed}"
         " --data {input.data:q} --out {params.out:q}"
@@ -43,7 +43,7 @@ checkpoint training_health:
         weights=f"{TRAINING_FOLDER}/model.pt",
         meta=f"{TRAINING_FOLDER}/meta.json",
         losses=f"{TRAINING_FOLDER}/loss.csv",
-        data=dataset_path(config["data"]["train_track"]),
+        data=paths.dataset(config["data"]["train_track"]),
     output:
         f"{TRAINING_FOLDER}/health.json",
     params:
@@ -52,7 +52,7 @@ checkpoint training_health:
     conda:
         CAPE_ENV
     log:
-        "results/logs/health/{model}/seed{training_seed}.log",
+        paths.log("health", "{model}", "seed{training_seed}.log"),
     shell:
         "cape check-training --model {wildcards.model}={params.folder:q} --data {input.data:q}"
         " --out {output:q} --config-json {params.cfg:q} > {log:q} 2>&1"
@@ -64,9 +64,9 @@ rule draw:
     input:
         unpack(draw_inputs),
     output:
-        weights="results/models/rep{replicate}/{model}/model.pt",
-        meta="results/models/rep{replicate}/{model}/meta.json",
-        losses="results/models/rep{replicate}/{model}/loss.csv",
+        weights=f"{MODEL_FOLDER}/model.pt",
+        meta=f"{MODEL_FOLDER}/meta.json",
+        losses=f"{MODEL_FOLDER}/loss.csv",
     localrule: True
     params:
         # (no `health` while a checkpoint is pending: the job is planned again once it is done)
@@ -78,7 +78,7 @@ rule draw:
     conda:
         CAPE_ENV
     log:
-        "results/logs/draw/rep{replicate}/{model}.log",
+        paths.log("draw", paths.REP, "{model}.log"),
     shell:
         "cape draw --model {wildcards.model} --replicate {wildcards.replicate} {params.trainings}"
         " --max-trainings {params.cap} --out {params.out:q} > {log:q} 2>&1"
@@ -86,18 +86,18 @@ rule draw:
 
 rule freeze:
     input:
-        weights="results/models/rep{replicate}/{model}/model.pt",
-        meta="results/models/rep{replicate}/{model}/meta.json",
-        data=dataset_path(config["data"]["train_track"]),
+        weights=f"{MODEL_FOLDER}/model.pt",
+        meta=f"{MODEL_FOLDER}/meta.json",
+        data=paths.dataset(config["data"]["train_track"]),
     output:
-        "results/models/rep{replicate}/{model}/frozen_phi.json",
+        f"{MODEL_FOLDER}/frozen_phi.json",
     params:
         cfg=lambda wildcards: config_json("data"),
         folder=lambda wildcards, input: os.path.dirname(input.weights),
     conda:
         CAPE_ENV
     log:
-        "results/logs/freeze/rep{replicate}/{model}.log",
+        paths.log("freeze", paths.REP, "{model}.log"),
     shell:
         "cape freeze --model {wildcards.model}={params.folder:q} --data {input.data:q} --out {output:q}"
         " --config-json {params.cfg:q} > {log:q} 2>&1"
@@ -105,10 +105,10 @@ rule freeze:
 
 rule export_network:
     input:
-        weights="results/models/rep{replicate}/{model}/model.pt",
-        meta="results/models/rep{replicate}/{model}/meta.json",
+        weights=f"{MODEL_FOLDER}/model.pt",
+        meta=f"{MODEL_FOLDER}/meta.json",
     output:
-        "results/models/rep{replicate}/{model}/network.npz",
+        f"{MODEL_FOLDER}/network.npz",
     localrule: True
     params:
         folder=lambda wildcards, input: os.path.dirname(input.weights),
@@ -116,7 +116,7 @@ rule export_network:
     conda:
         CAPE_ENV
     log:
-        "results/logs/export/rep{replicate}/{model}.log",
+        paths.log("export", paths.REP, "{model}.log"),
     shell:
         "cape export-network --model {wildcards.model}={params.folder:q} --out {output:q}"
         " --config-json {params.cfg:q} > {log:q} 2>&1"
@@ -125,21 +125,21 @@ rule export_network:
 rule openloop_table:
     input:
         models=lambda wildcards: trained_models(int(wildcards.replicate)),
-        train=dataset_path(config["data"]["train_track"]),
-        test=dataset_path(config["data"]["test_track"]),
+        train=paths.dataset(config["data"]["train_track"]),
+        test=paths.dataset(config["data"]["test_track"]),
     output:
-        csv="results/tables/rep{replicate}/table04_openloop_rmse.csv",
-        md="results/tables/rep{replicate}/table04_openloop_rmse.md",
-        tex="results/tables/rep{replicate}/table04_openloop_rmse.tex",
+        csv=f"{paths.REPLICATE_TABLES}/table04_openloop_rmse.csv",
+        md=f"{paths.REPLICATE_TABLES}/table04_openloop_rmse.md",
+        tex=f"{paths.REPLICATE_TABLES}/table04_openloop_rmse.tex",
     params:
         models=lambda wildcards: model_args(int(wildcards.replicate)),
         cfg=lambda wildcards: config_json("data", "training"),
     conda:
         CAPE_ENV
     log:
-        "results/logs/tables/rep{replicate}/table04_openloop_rmse.log",
+        paths.log("tables", paths.REP, "table04_openloop_rmse.log"),
     benchmark:
-        "results/benchmarks/tables/rep{replicate}/table04_openloop_rmse.tsv"
+        paths.benchmark("tables", paths.REP, "table04_openloop_rmse.tsv")
     shell:
         "cape openloop {params.models} --train-data {input.train:q} --test-data {input.test:q}"
         " --out {output.csv:q} --out {output.md:q} --out {output.tex:q} --config-json {params.cfg:q} > {log:q} 2>&1"
@@ -148,20 +148,20 @@ rule openloop_table:
 rule complexity_table:
     input:
         models=lambda wildcards: trained_models(int(wildcards.replicate)),
-        test=dataset_path(config["data"]["test_track"]),
+        test=paths.dataset(config["data"]["test_track"]),
     output:
-        csv="results/tables/rep{replicate}/table01_model_complexity.csv",
-        md="results/tables/rep{replicate}/table01_model_complexity.md",
-        tex="results/tables/rep{replicate}/table01_model_complexity.tex",
+        csv=f"{paths.REPLICATE_TABLES}/table01_model_complexity.csv",
+        md=f"{paths.REPLICATE_TABLES}/table01_model_complexity.md",
+        tex=f"{paths.REPLICATE_TABLES}/table01_model_complexity.tex",
     params:
         models=lambda wildcards: model_args(int(wildcards.replicate)),
         cfg=lambda wildcards: config_json("training"),
     conda:
         CAPE_ENV
     log:
-        "results/logs/tables/rep{replicate}/table01_model_complexity.log",
+        paths.log("tables", paths.REP, "table01_model_complexity.log"),
     benchmark:
-        "results/benchmarks/tables/rep{replicate}/table01_model_complexity.tsv"
+        paths.benchmark("tables", paths.REP, "table01_model_complexity.tsv")
     shell:
         "cape complexity {params.models} --data {input.test:q}"
         " --out {output.csv:q} --out {output.md:q} --out {output.tex:q} --config-json {params.cfg:q} > {log:q} 2>&1"
@@ -170,19 +170,19 @@ rule complexity_table:
 rule figure_models:
     input:
         models=trained_models(),
-        test=dataset_path(config["data"]["test_track"]),
+        test=paths.dataset(config["data"]["test_track"]),
     output:
-        phi_pdf="results/figures/model_phi_ethzmobil.pdf",
-        phi_png="results/figures/model_phi_ethzmobil.png",
-        curves_pdf="results/figures/training_curves.pdf",
-        curves_png="results/figures/training_curves.png",
+        phi_pdf=paths.figures("model_phi_ethzmobil.pdf"),
+        phi_png=paths.figures("model_phi_ethzmobil.png"),
+        curves_pdf=paths.figures("training_curves.pdf"),
+        curves_png=paths.figures("training_curves.png"),
     params:
         models=model_args(),
         cfg=lambda wildcards: config_json("data", "models"),
     conda:
         CAPE_ENV
     log:
-        "results/logs/figures/models.log",
+        paths.log("figures", "models.log"),
     shell:
         "cape plot-models {params.models} --data {input.test:q}"
         " --phi-out {output.phi_pdf:q} --phi-out {output.phi_png:q}"

@@ -5,9 +5,9 @@ rule raceline:
     input:
         track_files(),
     output:
-        line="results/raceline/{track}.npz",
-        pdf="results/figures/raceline_{track}.pdf",
-        png="results/figures/raceline_{track}.png",
+        line=paths.RACELINE,
+        pdf=paths.figures("raceline_{track}.pdf"),
+        png=paths.figures("raceline_{track}.png"),
     params:
         cfg=lambda wildcards: config_json("tracks", "reference"),
         # checked against the line's ideal lap before any run starts (a limit no lap can meet)
@@ -15,7 +15,7 @@ rule raceline:
     conda:
         CAPE_ENV
     log:
-        "results/logs/raceline/{track}.log",
+        paths.log("raceline", "{track}.log"),
     shell:
         "cape raceline --track {wildcards.track} --out {output.line:q}"
         " --figure {output.pdf:q} --figure {output.png:q} --time-limit {params.time_limit}"

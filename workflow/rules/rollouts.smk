@@ -5,18 +5,18 @@ rule solver:
     input:
         unpack(solver_inputs),
     output:
-        "results/solvers/rep{replicate}/{controller}/{internal}.json",
+        paths.SOLVER,
     params:
         cfg=lambda wildcards: rollout_config_json(
             wildcards.controller, wildcards.internal, solver=True
         ),
-        models=lambda wildcards, input: model_folder_args(input),
+        models=lambda wildcards: model_folder_args(wildcards, [wildcards.internal]),
     conda:
         CAPE_ENV
     log:
-        "results/logs/solvers/rep{replicate}/{controller}/{internal}.log",
+        paths.log("solvers", paths.REP, "{controller}", "{internal}.log"),
     benchmark:
-        "results/benchmarks/solvers/rep{replicate}/{controller}/{internal}.tsv"
+        paths.benchmark("solvers", paths.REP, "{controller}", "{internal}.tsv")
     shell:
         "cape build-solver --controller {wildcards.controller} --internal {wildcards.internal}"
         " --raceline {input.raceline:q} --out {output:q} {params.models} --config-json {params.cfg:q} > {log:q} 2>&1"
@@ -34,7 +34,7 @@ rule rollout:
             wildcards.controller, wildcards.plant, wildcards.internal
         ),
         out=lambda wildcards, output: os.path.dirname(output.metrics),
-        models=lambda wildcards, input: model_folder_args(input),
+        models=lambda wildcards: model_folder_args(wildcards, rollout_models(wildcards)),
         data=lambda wildcards, input: training_data_arg(input),
     conda:
         CAPE_ENV
@@ -59,21 +59,21 @@ rule rollouts:
 
 
 rule figure_rollout:
-    """The path and signals of one run, e.g. results/figures/rollout/learned_epm_epm_pid_eta0_seed0.pdf"""
+    """The path and signals of one run, e.g. results/figures/rollout/learned_rep0_epm_epm_pid_eta0_seed0.pdf"""
     input:
         metrics=f"{RUN_FOLDER}/metrics.json",
         series=f"{RUN_FOLDER}/timeseries.parquet",
         raceline=raceline_path(),
     output:
-        pdf=f"results/figures/rollout/{RUN_STEM}.pdf",
-        png=f"results/figures/rollout/{RUN_STEM}.png",
+        pdf=f"{paths.ROLLOUT_FIGURES}/{RUN_STEM}.pdf",
+        png=f"{paths.ROLLOUT_FIGURES}/{RUN_STEM}.png",
     params:
         cfg=lambda wildcards: config_json("tracks", "data", "reference"),
         run=lambda wildcards, input: os.path.dirname(input.metrics),
     conda:
         CAPE_ENV
     log:
-        f"results/logs/figures/rollout/{RUN_STEM}.log",
+        paths.log("figures", "rollout", f"{RUN_STEM}.log"),
     shell:
         "cape plot-rollout --run {params.run:q} --raceline {input.raceline:q} --out {output.pdf:q} --out {output.png:q}"
         " --config-json {params.cfg:q} > {log:q} 2>&1"

@@ -12,10 +12,12 @@ rule aggregate:
     input:
         lambda wildcards: rollout_targets(set(SCOPES[wildcards.scope])),
     output:
-        runs="{scope}/study/runs.parquet",
-        summary="{scope}/study/summary.parquet",
+        runs=paths.STUDY_RUNS,
+        summary=paths.STUDY_SUMMARY,
     params:
-        cfg=lambda wildcards: aggregate_config_json(SCOPES[wildcards.scope]),
+        cfg=lambda wildcards: grid_config_json(),
+        replicates=lambda wildcards: " ".join(map(str, SCOPES[wildcards.scope])),
+        models=paths.MODELS,
     conda:
         CAPE_ENV
     log:
@@ -23,8 +25,8 @@ rule aggregate:
     benchmark:
         "{scope}/benchmarks/study/aggregate.tsv"
     shell:
-        "cape aggregate --out {output.runs:q} --summary {output.summary:q} --models-root results/models"
-        " --config-json {params.cfg:q} > {log:q} 2>&1"
+        "cape aggregate --out {output.runs:q} --summary {output.summary:q} --models-root {params.models:q}"
+        " --replicates {params.replicates} --config-json {params.cfg:q} > {log:q} 2>&1"
 
 
 rule notebook_setup:
@@ -32,20 +34,24 @@ rule notebook_setup:
     input:
         notebook=f"{NOTEBOOKS}/setup.ipynb",
     output:
-        *reported_figures("setup", "results/figures", "../report/fig01.rst", "Set-up"),
-        figures("setup", "results/figures", ".pdf"),
-        tables("setup", "results/tables"),
-        notebook="results/notebooks/setup.ipynb",
-        html="results/notebooks/setup.html",
+        *reported_figures("setup", paths.FIGURES, "../report/fig01.rst", "Set-up"),
+        figures("setup", paths.FIGURES, ".pdf"),
+        tables("setup", paths.TABLES),
+        notebook=paths.notebooks("setup.ipynb"),
+        html=paths.notebooks("setup.html"),
     params:
-        cfg=lambda wildcards: config_json("controllers", "disturbances", "models"),
+        nb=lambda wildcards: papermill_args(
+            config_json=config_json("controllers", "disturbances", "models"),
+            figure_dir=paths.FIGURES,
+            table_dir=paths.TABLES,
+        ),
     conda:
         CAPE_ENV
     log:
-        "results/logs/notebooks/setup.log",
+        paths.log("notebooks", "setup.log"),
     localrule: True
     shell:
-        run_notebook("-r config_json {params.cfg:q}")
+        run_notebook("{params.nb}")
 
 
 rule notebook_closed_loop:
@@ -53,31 +59,37 @@ rule notebook_closed_loop:
     ground-truth studies, or one a user adds)."""
     input:
         notebook=f"{NOTEBOOKS}/closed_loop.ipynb",
-        runs="results/study/runs.parquet",
-        summary="results/study/summary.parquet",
+        runs=paths.study_runs(),
+        summary=paths.study_summary(),
         raceline=raceline_path(),
         series=lambda wildcards: example_series(wildcards.study),
     output:
-        *reported_figures("closed_loop", "results/figures/{study}", "../report/closed_loop.rst", "{study} study"),
-        figures("closed_loop", "results/figures/{study}", ".pdf"),
-        tables("closed_loop", "results/tables/{study}"),
-        notebook="results/notebooks/{study}.ipynb",
-        html="results/notebooks/{study}.html",
+        *reported_figures("closed_loop", paths.figures("{study}"), "../report/closed_loop.rst", "{study} study"),
+        figures("closed_loop", paths.figures("{study}"), ".pdf"),
+        tables("closed_loop", paths.tables("{study}")),
+        notebook=paths.notebooks("{study}.ipynb"),
+        html=paths.notebooks("{study}.html"),
     wildcard_constraints:
         study=studies_of_kind("closed_loop"),
     params:
-        cfg=lambda wildcards: config_json("tracks", "data", "reference", "controllers", "models", "study"),
+        nb=lambda wildcards, input: papermill_args(
+            study=wildcards.study,
+            config_json=config_json("tracks", "data", "reference", "controllers", "models", "study"),
+            runs_path=input.runs,
+            summary_path=input.summary,
+            raceline=input.raceline,
+            series_paths=input.series,
+            figure_dir=paths.figures(wildcards.study),
+            table_dir=paths.tables(wildcards.study),
+        ),
     conda:
         CAPE_ENV
     log:
-        "results/logs/notebooks/{study}.log",
+        paths.log("notebooks", "{study}.log"),
     benchmark:
-        "results/benchmarks/notebooks/{study}.tsv"
+        paths.benchmark("notebooks", "{study}.tsv")
     shell:
-        run_notebook(
-            "-r study {wildcards.study} -r config_json {params.cfg:q}"
-            " -r figure_dir results/figures/{wildcards.study} -r table_dir results/tables/{wildcards.study}"
-        )
+        run_notebook("{params.nb}")
 
 
 rule notebook_bicycle:
@@ -85,80 +97,90 @@ rule notebook_bicycle:
     the paper's study's learned EPM."""
     input:
         notebook=f"{NOTEBOOKS}/bicycle.ipynb",
-        summary="results/study/summary.parquet",
+        summary=paths.study_summary(),
     output:
-        *reported_figures("bicycle", "results/figures/{study}", "../report/bicycle.rst", "{study} study"),
-        figures("bicycle", "results/figures/{study}", ".pdf"),
-        tables("bicycle", "results/tables/{study}"),
-        notebook="results/notebooks/{study}.ipynb",
-        html="results/notebooks/{study}.html",
+        *reported_figures("bicycle", paths.figures("{study}"), "../report/bicycle.rst", "{study} study"),
+        figures("bicycle", paths.figures("{study}"), ".pdf"),
+        tables("bicycle", paths.tables("{study}")),
+        notebook=paths.notebooks("{study}.ipynb"),
+        html=paths.notebooks("{study}.html"),
     wildcard_constraints:
         study=studies_of_kind("bicycle"),
     params:
-        cfg=lambda wildcards: config_json("controllers", "models", "study"),
+        nb=lambda wildcards, input: papermill_args(
+            study=wildcards.study,
+            config_json=config_json("controllers", "models", "study"),
+            summary_path=input.summary,
+            figure_dir=paths.figures(wildcards.study),
+            table_dir=paths.tables(wildcards.study),
+        ),
     conda:
         CAPE_ENV
     log:
-        "results/logs/notebooks/{study}.log",
+        paths.log("notebooks", "{study}.log"),
     localrule: True
     shell:
-        run_notebook(
-            "-r study {wildcards.study} -r config_json {params.cfg:q}"
-            " -r figure_dir results/figures/{wildcards.study} -r table_dir results/tables/{wildcards.study}"
-        )
+        run_notebook("{params.nb}")
 
 
 rule notebook_ablation:
     """Figure 4 of a study of kind ablation: internal model against plant trajectories."""
     input:
         notebook=f"{NOTEBOOKS}/ablation.ipynb",
-        runs="results/study/runs.parquet",
+        runs=paths.study_runs(),
         raceline=raceline_path(),
         series=lambda wildcards: example_series(wildcards.study),
     output:
-        *reported_figures("ablation", "results/figures/{study}", "../report/fig04.rst", "{study} study"),
-        figures("ablation", "results/figures/{study}", ".pdf"),
-        notebook="results/notebooks/{study}.ipynb",
-        html="results/notebooks/{study}.html",
+        *reported_figures("ablation", paths.figures("{study}"), "../report/fig04.rst", "{study} study"),
+        figures("ablation", paths.figures("{study}"), ".pdf"),
+        notebook=paths.notebooks("{study}.ipynb"),
+        html=paths.notebooks("{study}.html"),
     wildcard_constraints:
         study=studies_of_kind("ablation"),
     params:
-        cfg=lambda wildcards: config_json("tracks", "data", "reference", "controllers", "models", "study"),
+        nb=lambda wildcards, input: papermill_args(
+            study=wildcards.study,
+            config_json=config_json("tracks", "data", "reference", "controllers", "models", "study"),
+            runs_path=input.runs,
+            raceline=input.raceline,
+            series_paths=input.series,
+            figure_dir=paths.figures(wildcards.study),
+        ),
     conda:
         CAPE_ENV
     log:
-        "results/logs/notebooks/{study}.log",
+        paths.log("notebooks", "{study}.log"),
     localrule: True
     shell:
-        run_notebook(
-            "-r study {wildcards.study} -r config_json {params.cfg:q}"
-            " -r figure_dir results/figures/{wildcards.study}"
-        )
+        run_notebook("{params.nb}")
 
 
 rule notebook_failures:
     """Figure 12 of one study: where its failed runs left the lap, on the track map."""
     input:
         notebook=f"{NOTEBOOKS}/failures.ipynb",
-        runs="results/study/runs.parquet",
+        runs=paths.study_runs(),
         raceline=raceline_path(),
     output:
-        *reported_figures("failures", "results/figures/{study}", "../report/failures.rst", "{study} study"),
-        figures("failures", "results/figures/{study}", ".pdf"),
-        notebook="results/notebooks/failures_{study}.ipynb",
-        html="results/notebooks/failures_{study}.html",
+        *reported_figures("failures", paths.figures("{study}"), "../report/failures.rst", "{study} study"),
+        figures("failures", paths.figures("{study}"), ".pdf"),
+        notebook=paths.notebooks("failures_{study}.ipynb"),
+        html=paths.notebooks("failures_{study}.html"),
     params:
-        cfg=lambda wildcards: config_json("tracks", "data", "reference", "controllers", "models", "study"),
+        nb=lambda wildcards, input: papermill_args(
+            study=wildcards.study,
+            config_json=config_json("tracks", "data", "reference", "controllers", "models", "study"),
+            runs_path=input.runs,
+            raceline=input.raceline,
+            figure_dir=paths.figures(wildcards.study),
+        ),
     conda:
         CAPE_ENV
     log:
-        "results/logs/notebooks/failures_{study}.log",
+        paths.log("notebooks", "failures_{study}.log"),
     localrule: True
     shell:
-        run_notebook(
-            "-r study {wildcards.study} -r config_json {params.cfg:q}"
-            " -r figure_dir results/figures/{wildcards.study}"
-        )
+        run_notebook("{params.nb}")
 
 
 rule notebook_scorecard:
@@ -168,8 +190,8 @@ rule notebook_scorecard:
     input:
         unpack(scorecard_inputs),
         notebook=f"{NOTEBOOKS}/scorecard.ipynb",
-        runs="{scope}/study/runs.parquet",
-        summary="results/study/summary.parquet",
+        runs=paths.STUDY_RUNS,
+        summary=paths.study_summary(),
         raceline=raceline_path(),
     output:
         report("{scope}/tables/table08_scorecard.md", caption="../report/scorecard.rst", category="Claims"),
@@ -177,21 +199,32 @@ rule notebook_scorecard:
         *(f"{{scope}}/tables/{name}{ext}" for name in WHOLE_STUDY_NOTEBOOKS["scorecard"].tables if name != "table08_scorecard" for ext in TABLE_EXTS),
         *reported_figures("scorecard", "{scope}/figures", "../report/scorecard.rst", "Claims"),
         figures("scorecard", "{scope}/figures", ".pdf"),
-        report("{scope}/RESULTS.md", caption="../report/glance.rst", category="Claims"),
+        report(paths.GLANCE, caption="../report/glance.rst", category="Claims"),
         notebook="{scope}/notebooks/scorecard.ipynb",
         html="{scope}/notebooks/scorecard.html",
     params:
-        cfg=lambda wildcards: config_json(
-            "tracks", "data", "reference", "controllers", "models", "study", "training", "scorecard"
+        nb=lambda wildcards, input: papermill_args(
+            config_json=config_json(
+                "tracks", "data", "reference", "controllers", "models", "study", "training", "scorecard"
+            ),
+            runs_path=input.runs,
+            summary_path=input.summary,
+            raceline=input.raceline,
+            replicates=SCOPES[wildcards.scope],
+            complexity_paths=input.complexity,
+            openloop_paths=input.openloop,
+            model_root=paths.MODELS,  # the draws' meta.json and loss.csv: input.models
+            table_dir=paths.scoped(wildcards.scope, "tables"),
+            figure_dir=paths.scoped(wildcards.scope, "figures"),
+            glance_path=paths.glance(wildcards.scope),
         ),
-        paths=scorecard_params,
     conda:
         CAPE_ENV
     log:
         "{scope}/logs/notebooks/scorecard.log",
     localrule: True
     shell:
-        run_notebook("-r config_json {params.cfg:q} {params.paths}")
+        run_notebook("{params.nb}")
 
 
 rule study:
@@ -215,13 +248,13 @@ rule replicates:
 if workflow.is_main_process:
     for _scope, _replicates in SCOPES.items():
         _missing = missing_runs(
-            f"{_scope}/study/runs.parquet",
+            paths.study_runs(_scope),
             (f"{run.folder()}/metrics.json" for run in computed_runs(set(_replicates))),
         )
         if _missing:
-            _target = "all" if _scope == "results" else "replicates"
+            _target = "all" if _scope == paths.DEFAULT_SCOPE else "replicates"
             print(
-                f"{_scope}/study/runs.parquet: {len(_missing)} of its runs are missing (e.g. "
+                f"{paths.study_runs(_scope)}: {len(_missing)} of its runs are missing (e.g. "
                 f"{_missing[0].parent}); `snakemake --cores 2 {_target}` rebuilds them and it",
                 file=sys.stderr,
             )

@@ -9,7 +9,7 @@ rule tracks:
     conda:
         CAPE_ENV
     log:
-        "results/logs/tracks.log",
+        paths.log("tracks.log"),
     localrule: True
     shell:
         # tee: a failure's message (what to do) shows on the console, not only in the log

@@ -12,6 +12,7 @@ from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 from cape.errors import CapeError  # noqa: E402
+from cape.layout import paths  # noqa: E402
 
 Arguments = Callable[[argparse.ArgumentParser], None]
 Command = Callable[[argparse.Namespace], None]
@@ -91,9 +92,9 @@ def _model_folders(args: argparse.Namespace) -> Any:
     for item in args.model:
         name, sep, folder = item.partition("=")
         if not sep or not name or not folder:
-            raise CapeError(f"--model {item}: expected NAME=DIR, e.g. epm=results/models/rep0/epm")
+            raise CapeError(f"--model {item}: expected NAME=DIR, e.g. epm={paths.model_dir('epm')}")
         named[name] = Path(folder)
-    root = args.models_dir or f"results/models/rep{getattr(args, 'replicate', 0)}"
+    root = args.models_dir or paths.models_of(getattr(args, "replicate", 0) or 0)
     return ModelFolders(Path(root), named)
 
 
@@ -132,7 +133,7 @@ def _with_provenance(table: Any, items: list[str]) -> Any:
     for item in items:
         name, _, folder = item.partition("=")
         meta = read_meta(folder)
-        made[name] = (model_replicate(Path(folder), meta), str(meta.get("weights_sha256") or ""))
+        made[name] = (model_replicate(meta), str(meta.get("weights_sha256") or ""))
     table = table.copy()
     table["replicate"] = [made[m][0] for m in table["model"]]
     table["weights_sha256"] = [made[m][1] for m in table["model"]]
@@ -148,7 +149,7 @@ def _load_models(items: list[str]) -> dict[str, Any]:
         name, sep, folder = item.partition("=")
         if not sep:
             raise CapeError(
-                f"--model {item}: expected NAME=FOLDER, e.g. epm=results/models/rep0/epm"
+                f"--model {item}: expected NAME=FOLDER, e.g. epm={paths.model_dir('epm')}"
             )
         models[name] = load_model(folder, expected_name=name)
     return models

@@ -22,6 +22,7 @@ from cape.cli.common import (
     command,
 )
 from cape.errors import CapeError
+from cape.layout import paths
 
 
 def _model_spec(config: dict[str, Any], name: str) -> dict[str, Any]:
@@ -105,10 +106,6 @@ def cmd_train(args: argparse.Namespace) -> None:
         if value is not None and not (math.isfinite(value) and value >= least):  # NaN too
             raise CapeError(f"{option} {value}: give a number of at least {least}")
     spec = _model_spec(config, args.model)
-    if args.replicate is None:  # a draw's folder (rep<r>/<model>) keeps its draw; else none
-        from cape.closedloop.provenance import model_replicate
-
-        args.replicate = model_replicate(Path(args.out), {})
     _check_model_folder(Path(args.out), args.model, args.replicate)  # before training
     data_cfg, train_cfg = section(config, "data"), section(config, "training")
     seed = int(args.seed if args.seed is not None else train_cfg["seed"])
@@ -219,7 +216,8 @@ def _check_model_folder(out: Path, model: str, replicate: int | None) -> None:
         raise CapeError(
             f"--out {out}: holds a trained {meta['name']!r} of {said(meta.get('replicate'))}, "
             f"not {model!r} of {said(replicate)}; nothing was changed. Train it into its own "
-            f"folder (results/trainings/{model}/seed<s>), or delete that folder first"
+            f"folder ({paths.TRAINING.format(model=model, training_seed='<s>')}), or delete that "
+            "folder first"
         )
 
 
@@ -413,7 +411,7 @@ def cmd_export_network(args: argparse.Namespace) -> None:
     name, sep, folder = args.model.partition("=")
     if not sep:
         raise CapeError(
-            f"--model {args.model}: expected NAME=FOLDER, e.g. epm=results/models/rep0/epm"
+            f"--model {args.model}: expected NAME=FOLDER, e.g. epm={paths.model_dir('epm')}"
         )
     out = export_network(folder, args.out, expected_name=name)
     print(f"wrote {out}: the {name} network for the closed loop")

@@ -20,6 +20,7 @@ from cape.cli.common import (
     command,
 )
 from cape.errors import CapeError
+from cape.layout.names import TRUTH
 
 PLANT_KINDS = "dpm|ddm|epm (learned), dpm-fixed|ddm-fixed|epm-fixed, or truth"
 RUN_WHAT = "a run's own files (metrics.json, timing.json, timeseries.parquet)"
@@ -48,7 +49,7 @@ def cmd_build_solver(args: argparse.Namespace) -> None:
     config = _config(args)
     run = build_run(
         config,
-        "truth",  # the plant does not enter the controller's NLP
+        TRUTH,  # the plant does not enter the controller's NLP
         args.controller,
         0.0,
         0,
@@ -123,8 +124,9 @@ def cmd_rollout(args: argparse.Namespace) -> None:
     from cape.config import check_eta, section
     from cape.controllers import controller_class
     from cape.io import atomic_folder, check_replaceable
-    from cape.study.grid import RUN_FILES, check_name
-    from cape.study.record import write_run_files, write_timing
+    from cape.layout.names import check_name
+    from cape.layout.record import write_run_files, write_timing
+    from cape.layout.runs import RUN_FILES
 
     imported = time.perf_counter()
     config = _config(args)
@@ -222,9 +224,9 @@ def _plot_rollout_arguments(p: argparse.ArgumentParser) -> None:
 )
 def cmd_plot_rollout(args: argparse.Namespace) -> None:
     from cape.closedloop.setup import load_reference
+    from cape.layout.record import read_metrics, read_series
     from cape.plots.rollout import plot_rollout
     from cape.plots.style import save_figure
-    from cape.study.record import read_metrics, read_series
 
     config = _config(args)
     run = Path(args.run)

@@ -13,12 +13,20 @@ from cape.cli.common import (
     _config,
     command,
 )
+from cape.layout import paths
 
 
 def _aggregate_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("runs", nargs="*", help="metrics.json files of the runs (default: the grid)")
     p.add_argument("--runs-from", metavar="FILE", help="a file listing metrics.json paths")
-    p.add_argument("--root", default="results/runs", help="where the grid's runs are")
+    p.add_argument("--root", default=paths.RUNS, help="where the grid's runs are (%(default)s)")
+    p.add_argument(
+        "--replicates",
+        type=int,
+        nargs="+",
+        metavar="R",
+        help="only the grid's runs of these training replicates (default: all)",
+    )
     p.add_argument("--out", required=True, help="the tidy table of runs (.parquet)")
     p.add_argument("--summary", required=True, help="the per-cell summary (.parquet)")
     p.add_argument(
@@ -37,7 +45,7 @@ def _aggregate_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_aggregate(args: argparse.Namespace) -> None:
     from cape.io import write_files
     from cape.study.aggregate import collect_runs, summarise
-    from cape.study.grid import canonical, study_runs
+    from cape.study.grid import study_grid
 
     config = _config(args)
     paths = [Path(p) for p in args.runs]
@@ -47,14 +55,8 @@ def cmd_aggregate(args: argparse.Namespace) -> None:
     if paths:  # the runs named, each of the study its metrics.json records
         pairs = [(None, p) for p in paths]
     else:  # every run of the config's grid, read where it was computed
-        internal = set(config["study"].get("internal_controllers", []))
-        study = dict(config["study"])
-        if "order" in study:  # the workflow's order (its JSON has sorted keys): see canonical
-            study["studies"] = {name: study["studies"][name] for name in study["order"]}
-        grid = canonical(study_runs(study, config["disturbances"]["eta"],
-                                    lambda c: c in internal,
-                                    int(study.get("replicates", 1))))  # fmt: skip
-        read = study.get("read_replicates")  # the workflow's: one scope's replicates
+        grid = study_grid(config)
+        read = args.replicates
         pairs = [(run.study, computed.folder(args.root) / "metrics.json", computed, run.replicate)
                  for run, computed in grid.items()
                  if read is None or run.replicate in read]  # fmt: skip

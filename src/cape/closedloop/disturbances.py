@@ -368,7 +368,7 @@ class DisturbancePipeline:
 def validate_sources(disturbances: Mapping[str, Any], source: str = "config") -> None:
     """Each source entry against its class's ``settings_schema`` (a misspelt key, a missing
     one, a wrong type), naming ``disturbances.<name>.<key>`` and the fix."""
-    from cape.config import _jsonschema
+    from cape import schemas
 
     for name, entry in source_entries(disturbances).items():
         cls = source_class(name, entry)
@@ -378,7 +378,7 @@ def validate_sources(disturbances: Mapping[str, Any], source: str = "config") ->
         full = {**schema, "properties": {"module": {"type": "string"},
                                          "active_from": {"type": "number", "minimum": 0},
                                          **schema.get("properties", {})}}  # fmt: skip
-        errors = sorted(_jsonschema().Draft202012Validator(full).iter_errors(entry),
+        errors = sorted(schemas.validator(full).iter_errors(entry),
                         key=lambda e: list(e.absolute_path))  # fmt: skip
         if errors:
             where = ".".join(["disturbances", name, *(str(p) for p in errors[0].absolute_path)])

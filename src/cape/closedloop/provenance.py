@@ -10,23 +10,20 @@ its replicate's current models (cape.study.aggregate).
 
 from __future__ import annotations
 
-import re
-from pathlib import Path
 from typing import Any
 
-from cape.closedloop.setup import ModelFolders, parse_plant
+from cape.closedloop.setup import ModelFolders
 from cape.config import section
 from cape.errors import CapeError
+from cape.layout import paths
+from cape.layout.names import PlantName
 from cape.models.trained import read_meta
 
 
-def model_replicate(folder: Path, meta: dict[str, Any]) -> int | None:
-    """The training replicate of the model in ``folder``: what its meta.json records, else
-    what its folder says (``rep<r>/<model>``), else None."""
-    if meta.get("replicate") is not None:
-        return int(meta["replicate"])
-    match = re.fullmatch(r"rep([0-9]+)", Path(folder).parent.name)
-    return int(match.group(1)) if match else None
+def model_replicate(meta: dict[str, Any]) -> int | None:
+    """The training replicate (draw) a model's meta.json records (``cape draw`` writes it),
+    or None for a training that is no draw."""
+    return None if meta.get("replicate") is None else int(meta["replicate"])
 
 
 def run_models(
@@ -39,20 +36,20 @@ def run_models(
     for role, name in (("plant", plant), ("internal", internal)):
         if name is None:
             continue
-        kind, model = parse_plant(name, models, f"--{role}")
-        if kind == "truth" or model is None:
+        model = PlantName.parse(name, models, f"--{role}").model
+        if model is None:  # the ground truth: no trained model
             continue
         folder = folders(model)
         meta = read_meta(folder)
-        trained = model_replicate(folder, meta)
+        trained = model_replicate(meta)
         if trained is not None and trained != replicate:  # a training of no draw: the user's
+            draw = paths.model_dir(model, replicate)
             raise CapeError(
                 f"--replicate {replicate}: the {model} model in {folder} is replicate {trained}'s, "
                 "so the run "
                 f"would carry its numbers under replicate {replicate}; pass --model "
-                f"{model}=results/models/rep{replicate}/{model} (trained by `snakemake --cores 2 "
-                f"results/models/rep{replicate}/{model}/network.npz`, with training.replicates "
-                f"above {replicate})"
+                f"{model}={draw} (made by `snakemake --cores 2 {draw}/network.npz`, with "
+                f"training.replicates above {replicate})"
             )
         used[role] = {
             "model": model,

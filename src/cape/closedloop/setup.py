@@ -14,7 +14,6 @@ import numpy as np
 
 from cape.closedloop.disturbances import DisturbancePipeline
 from cape.closedloop.envelope import Envelope
-from cape.closedloop.model_names import truth_structure
 from cape.closedloop.plants import FixedParameterPlant, LearnedPlant, Plant, TruthPlant
 from cape.closedloop.rollout import RolloutResult, run_lap
 from cape.config import section
@@ -24,27 +23,14 @@ from cape.controllers.ekf import NoiseLevels
 from cape.controllers.internal import InternalModel, fixed_internal
 from cape.errors import CapeError
 from cape.integrity import check_arrays, check_record
+from cape.layout import paths
+from cape.layout.names import PlantName, truth_structure
 from cape.models.registry import model_class
 from cape.models.trained import TrainedModel, load_physics, load_trained, read_meta
 from cape.tracks import native
 from cape.tracks.reference import ReferenceLine, check_time_limit
 from cape.tracks.track import Track, load_raceline, load_track
 from cape.vehicle.params import ACTUATOR_LIMITS, GROUND_TRUTH
-
-
-def parse_plant(
-    name: str, models: dict[str, Any], option: str = "--plant"
-) -> tuple[str, str | None]:
-    """``(kind, model)`` of a plant (or internal model) name: ("learned", "epm"), ("fixed",
-    "ddm"), ("truth", None); ``option`` is what the error names."""
-    if name == "truth":
-        return "truth", None
-    model, _, suffix = name.partition("-")
-    if model in models and suffix in ("", "fixed"):
-        return ("fixed" if suffix else "learned"), model
-    raise CapeError(
-        f"{option} {name}: expected truth, a model name ({', '.join(models)}) or <model>-fixed"
-    )
 
 
 def load_reference(config: dict[str, Any], raceline: str | None) -> tuple[ReferenceLine, Track]:
@@ -58,7 +44,7 @@ def load_reference(config: dict[str, Any], raceline: str | None) -> tuple[Refere
         rl = load_raceline(tracks["dir"], f"{entry['prefix']}_raceline_long.npz")
         x, y, speed = rl.x, rl.y, rl.speed
     else:
-        path = Path(raceline or f"results/raceline/{name}.npz")
+        path = Path(raceline or paths.raceline(name))
         if not path.is_file():
             raise CapeError(
                 f"{path}: reference raceline missing; build it with `snakemake --cores 1 {path}`"
@@ -79,7 +65,7 @@ class ModelFolders:
     """Where each trained model's files are: the folder given for its name (what a workflow
     rule declares as its inputs), else ``<root>/<name>`` (the command line's ``--models-dir``)."""
 
-    root: Path = Path("results/models/rep0")
+    root: Path = Path(paths.models_of(0))
     named: Mapping[str, Path] = field(default_factory=dict)
 
     def __call__(self, name: str) -> Path:
@@ -127,7 +113,8 @@ def build_internal(
     models the caller already read (the plant's), so a network is not loaded twice."""
     models = section(config, "models")
     ts = float(section(config, "data")["ts"])
-    kind, model_name = parse_plant(name, models, "--internal")
+    parsed = PlantName.parse(name, models, "--internal")
+    kind, model_name = parsed.kind, parsed.model
     if kind == "truth":
         structure = truth_structure(models)
         physics = model_class(structure, models[structure])(models[structure], ts)
@@ -194,9 +181,10 @@ def build_run(
     models = section(config, "models")
     controllers = section(config, "controllers")
     ts = float(section(config, "data")["ts"])
-    kind, model_name = parse_plant(plant_name, models)
-    if internal is not None:
-        parse_plant(internal, models, "--internal")  # a bad name is an error for any controller
+    plant_parsed = PlantName.parse(plant_name, models, "--plant")
+    kind, model_name = plant_parsed.kind, plant_parsed.model
+    if internal is not None:  # a bad name is an error for any controller
+        PlantName.parse(internal, models, "--internal")
     if controller_name not in controllers:
         known = ", ".join(controllers)
         raise CapeError(
@@ -225,14 +213,12 @@ def build_run(
     factor = section(config, "rollout").get("plant_envelope")
     if kind != "truth" and factor is not None:
         train_track = section(config, "data")["train_track"]
-        path = envelope_data or f"results/data/DYN-PP-{train_track}.npz"
+        path = envelope_data or paths.dataset(train_track)
         envelope = Envelope.of_file(path, float(factor))
     cls = controller_class(controller_name, controllers[controller_name])
     if validate:  # a rule's config was validated when the workflow started
         validate_settings(cls, controller_name, controllers[controller_name])
-    default_internal = (
-        "truth" if kind == "truth" else f"{model_name}{'-fixed' if kind == 'fixed' else ''}"
-    )
+    default_internal = str(plant_parsed)
     internal_model = None
     if cls.needs_internal_model:
         internal_model = build_internal(config, internal or default_internal, folders, loaded)

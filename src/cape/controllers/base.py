@@ -97,14 +97,14 @@ def validate_settings(cls: type, name: str, settings: Any, source: str = "config
     own keys: a misspelt or missing key, a wrong type, a value out of range) and raise
     ``CapeError`` naming the key and the fix. A class without a schema is checked by its own
     ``require`` calls only."""
-    from cape.config import _jsonschema
+    from cape import schemas
     from cape.errors import CapeError
 
     schema = getattr(cls, "settings_schema", None)
     if schema is None:
         return
     full = {**schema, "properties": {**ENTRY, **schema.get("properties", {})}}
-    validator = _jsonschema().Draft202012Validator(full)
+    validator = schemas.validator(full)
     errors = sorted(validator.iter_errors(settings), key=lambda e: list(e.absolute_path))
     if errors:
         first = errors[0]

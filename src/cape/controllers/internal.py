@@ -14,10 +14,11 @@ Model's actuator lag makes the applied input a state.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, get_args
 
 import numpy as np
 
+from cape.layout.names import PlantKind
 from cape.models.physics import ModelPhysics
 from cape.models.trained import PhiPredictor
 from cape.vehicle.backend import ops_for
@@ -31,11 +32,11 @@ class InternalModel:
     def __init__(
         self,
         model: ModelPhysics,
-        source: str,
+        source: PlantKind,
         fixed: dict[str, float] | None = None,
         predictor: PhiPredictor | None = None,
     ) -> None:
-        if source not in ("learned", "fixed", "truth"):
+        if source not in get_args(PlantKind):
             raise ValueError(f"unknown Φ source {source!r}")
         if (source == "learned") != (fixed is None) or (source == "learned") != (
             predictor is not None

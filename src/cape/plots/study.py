@@ -12,6 +12,7 @@ import pandas as pd
 
 from cape.closedloop.disturbances import STAGES, source_class, source_entries
 from cape.closedloop.rollout import FAILURES
+from cape.layout.names import PlantName
 from cape.plots.style import plt
 from cape.plots.tracks import closed, draw_track
 from cape.tracks.geometry import ClosedPath
@@ -22,16 +23,17 @@ MARKERS = ("o", "s", "^", "D", "v", "P", "X")
 
 
 def model_colour(models: Mapping[str, Mapping], name: str) -> str:
-    base = name.removesuffix("-fixed")
+    base = PlantName.parse(name).model or name
     return str(models.get(base, {}).get("color", "0.3"))
 
 
 def model_label(models: Mapping[str, Mapping], name: str) -> str:
-    base = name.removesuffix("-fixed")
-    label = str(models.get(base, {}).get("label", base.upper()))
-    if name == "truth":
+    plant = PlantName.parse(name)
+    if plant.is_truth:
         return "true model"
-    return f"{label} (fixed)" if name.endswith("-fixed") else label
+    base = str(plant.model)
+    label = str(models.get(base, {}).get("label", base.upper()))
+    return f"{label} (fixed)" if plant.kind == "fixed" else label
 
 
 def interval(cells: pd.DataFrame, metric: str) -> tuple[np.ndarray, np.ndarray]:
@@ -144,10 +146,11 @@ def _bar_panel(
         bars = [b for b in (_bar(summary, controller, model, metric) for model in model_names) if b]
         for k, (model, mean, below, above) in enumerate(bars):
             label = "_nolegend_" if model in labelled else model_label(models, model)
+            fixed = PlantName.parse(model).kind == "fixed"
             ax.bar(i + (k - (len(bars) - 1) / 2) * width, mean, width, yerr=[[below], [above]],
                    capsize=2, color=model_colour(models, model),
-                   alpha=0.5 if model.endswith("-fixed") else 0.95,
-                   hatch="//" if model.endswith("-fixed") else None, edgecolor="black", lw=0.5,
+                   alpha=0.5 if fixed else 0.95, hatch="//" if fixed else None,
+                   edgecolor="black", lw=0.5,
                    label=label)  # fmt: skip
             labelled.add(model)
     ax.set_xticks(np.arange(len(names)), [controllers[c] for c in names], fontsize=8)

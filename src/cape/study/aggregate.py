@@ -1,7 +1,7 @@
 """Every run's metrics in one tidy table (``runs.parquet``), and summaries over seeds.
 
 A run is identified by (study, replicate, plant, internal, controller, eta, seed)
-(``cape.study.grid.RunId``, which also names its folder); its ``metrics.json`` records them all,
+(``cape.layout.runs.RunId``, which also names its folder); its ``metrics.json`` records them all,
 and ``timing.json`` beside it the solve times. Summaries group the seeds of one cell (of one
 training replicate): the mean of a metric with its 95 % confidence interval (Student's t over
 the seeds), the success rate, and the failure-penalised means of SPEC §5.3 (a failed run
@@ -28,8 +28,9 @@ from scipy import stats
 
 from cape.errors import CapeError
 from cape.integrity import KEY
-from cape.study.grid import RunId
-from cape.study.record import read_metrics, read_timing, verify_series
+from cape.layout.names import TRUTH, replicate_name
+from cape.layout.record import read_metrics, read_timing, verify_series
+from cape.layout.runs import RunId
 
 KEYS = ["study", "replicate", "plant", "internal", "controller", "eta", "seed"]
 CELL = ["study", "replicate", "model", "plant", "internal", "controller", "eta", "eta_label"]
@@ -63,7 +64,7 @@ class CurrentModels:
         if key not in self._seen:
             from cape.models.trained import read_meta
 
-            folder = self.root / f"rep{replicate}" / model
+            folder = self.root / replicate_name(replicate) / model
             self._seen[key] = (folder / "meta.json", str(read_meta(folder).get("weights_sha256")))
         return self._seen[key]
 
@@ -75,13 +76,13 @@ def check_models(metrics: Mapping[str, Any], folder: Path, current: CurrentModel
     recorded = metrics.get("models")
     plant = str(metrics["plant"])
     if recorded is None:
-        if plant != "truth" or str(metrics["internal"]) != "truth":
+        if plant != TRUTH or str(metrics["internal"]) != TRUTH:
             raise CapeError(
                 f"{folder}: metrics.json records no trained networks (written by an earlier "
                 f"version of `cape rollout`); {fix}"
             )
         return
-    if plant != "truth" and "plant" not in recorded:
+    if plant != TRUTH and "plant" not in recorded:
         raise CapeError(f"{folder}: metrics.json records no network for its plant {plant}; {fix}")
     replicate = int(metrics["replicate"])
     for role, used in recorded.items():
@@ -104,7 +105,7 @@ def read_run(
 ) -> dict:
     """One row of ``study`` (default: the study the run's metrics.json records): the run's
     metrics and its timing (a run shared by two studies is read once per study). The run's
-    files are checked first (``cape.study.record``): its metrics against their schema, their
+    files are checked first (``cape.layout.record``): its metrics against their schema, their
     checksum and the run ``expected`` (default: the one the folder names), its timing against
     its checksum, its series against the digest the timing recorded. ``replicate``: the
     replicate of the study that asks (a run with no trained model is computed once, for

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 
 import pandas as pd
 
+from cape.layout import paths
 from cape.study.claims import GROUND_TRUTH
 from cape.study.scorecard import NOT_EVALUATED, draws_of, holds_for_every_network, presented
 from cape.study.tables import plant_failures
@@ -78,7 +79,7 @@ def _intro(table: pd.DataFrame, runs: pd.DataFrame) -> list[str]:
             "is about this training draw's networks, over the disturbance seeds: another training "
             "seed or another CPU draws other networks, and the verdict may change. For verdicts "
             f"about the model classes, over several draws, run `{REPLICATES_COMMAND}` "
-            "(`results/replicates/RESULTS.md`).",
+            f"(`{paths.glance(paths.REPLICATES_SCOPE)}`).",
             "",
             common,
         ]

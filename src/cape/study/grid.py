@@ -1,117 +1,19 @@
-"""A run's identity and the study grid (SPEC §8): the one place a run's folder is spelled.
-
-A run is (study, training replicate, plant, internal model, controller, η, seed); its files live
-in ``<root>/<study>/rep<r>/<plant>/<internal>/<controller>/eta<η>/seed<s>/``. The replicate is
-the training draw of the learned models the run uses (SPEC §4: replicate r is trained with
-training seed ``training.seed + r``). The workflow's targets, the
-aggregation and the notebooks all go through ``RunId``, and the grid of a config is enumerated
-once, by ``study_runs``.
+"""The study grid (SPEC §8): every run of a config, enumerated once, by ``study_grid``.
 
 A run's result depends on its plant, internal model, controller, η, seed and (when it uses a
 trained model) replicate, never on the study that asks for it. So when two studies ask for the
 same run (the ablation's diagonal, internal = plant, repeats runs of the learned study), it is
 computed once, in the folder of the first study of the config that has it (``canonical``), and
-both studies read it.
+both studies read it. The workflow's rules and ``cape aggregate`` both call ``study_grid``.
 """
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from cape.errors import CapeError
-
-RUNS_ROOT = "results/runs"
-RUN_FILES = ("metrics.json", "timing.json", "timeseries.parquet")
-"""A run folder's files: written together by ``cape rollout``, the only files it replaces."""
-
-NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_]{0,39}$"
-"""Names that become folder and file names (studies, models, controllers, tracks, sources):
-identifiers of at most 40 characters. The config schema holds the same pattern (a test keeps
-the two equal), so a name can never climb out of ``results/`` or confuse the layout."""
-
-
-def check_name(name: str, where: str) -> str:
-    """``name``, or ``CapeError`` when it is not an identifier (``NAME_PATTERN``)."""
-    if not re.fullmatch(NAME_PATTERN, name):
-        raise CapeError(
-            f"{where} {name!r}: a name is a letter followed by up to 39 letters, digits or "
-            "underscores (it names folders); rename it"
-        )
-    return name
-
-
-@dataclass(frozen=True)
-class RunId:
-    """One closed-loop run of a study. ``eta`` is the grid's label (it names a folder);
-    ``replicate`` the training draw of the learned models it uses (SPEC §4)."""
-
-    study: str
-    plant: str
-    internal: str
-    controller: str
-    eta: str
-    seed: int
-    replicate: int = 0
-
-    def parts(self) -> tuple[str, ...]:
-        """The run's folder names, root to leaf: the one place the layout is spelled."""
-        return (self.study, f"rep{self.replicate}", self.plant, self.internal, self.controller,
-                f"eta{self.eta}", f"seed{self.seed}")  # fmt: skip
-
-    def folder(self, root: str | Path = RUNS_ROOT) -> Path:
-        """The run's folder under ``root``."""
-        return Path(root, *self.parts())
-
-    def stem(self) -> str:
-        """The run as one file name (its figure's): the folder names joined by ``_``."""
-        return "_".join(self.parts())
-
-    @classmethod
-    def glob(cls) -> str:
-        """A glob of every run folder under a root: ``*`` for each field."""
-        return re.sub(r"\{\w+\}", "*", str(cls.wildcards().folder(".")))
-
-    @classmethod
-    def wildcards(cls) -> RunId:
-        """The run of a workflow rule: every field a Snakemake wildcard of the same name."""
-        return cls(
-            "{study}", "{plant}", "{internal}", "{controller}", "{eta}", "{seed}", "{replicate}"
-        )  # type: ignore[arg-type]
-
-    @classmethod
-    def parse(cls, path: str | Path) -> RunId:
-        """The run whose folder (or a file in it) is ``path``: ``parts`` read backwards."""
-        path = Path(path)
-        templates = cls.wildcards().parts()
-        if not path.name.startswith(templates[-1].split("{")[0]):  # a file in the folder
-            path = path.parent
-        names = path.parts[-len(templates) :]
-        fields: dict[str, str] = {}
-        for template, name in zip(templates, names, strict=False):
-            prefix, field = template[: template.index("{")], template[template.index("{") + 1 : -1]
-            if not name.startswith(prefix):
-                break
-            fields[field] = name[len(prefix) :]
-        numbers = ("seed", "replicate")
-        if len(fields) != len(templates) or not all(fields[k].isdigit() for k in numbers):
-            layout = "/".join(templates).replace("{", "<").replace("}", ">")
-            raise ValueError(f"{path}: not a run folder (…/{layout})")
-        return cls(**{**fields, **{k: int(fields[k]) for k in numbers}})  # type: ignore[arg-type]
-
-    def uses_trained_model(self) -> bool:
-        """True unless plant and internal model are both the ground truth (then no replicate's
-        network or frozen Φ enters the run)."""
-        return not (self.plant == "truth" and self.internal == "truth")
-
-    def same_run(self) -> tuple[str, str, str, str, int, int]:
-        """What the run's result depends on: everything but the study, and the replicate only
-        where a trained model enters the run."""
-        replicate = self.replicate if self.uses_trained_model() else 0
-        return (self.plant, self.internal, self.controller, self.eta, self.seed, replicate)
+from cape.layout.runs import RunId
 
 
 def study_replicates(grid: Mapping[str, Any], replicates: int) -> list[int]:
@@ -192,3 +94,21 @@ def canonical(runs: list[RunId]) -> dict[RunId, RunId]:
     internal model, controller, η and seed."""
     first: dict[tuple[str, str, str, str, int, int], RunId] = {}
     return {run: first.setdefault(run.same_run(), run) for run in runs}
+
+
+def study_grid(config: Mapping[str, Any], source: str = "config") -> dict[RunId, RunId]:
+    """Every run of ``config``'s grid → the run that computes it (``canonical``), in the
+    config's order; ``CapeError`` first when the grid exceeds ``study.max_runs``. Reads the
+    ``study`` section, ``disturbances.eta``, ``training.replicates`` and which of the
+    ``controllers`` predict with an internal model."""
+    from cape.controllers import controller_class
+
+    controllers = config["controllers"]
+
+    def uses_internal(name: str) -> bool:
+        return bool(controller_class(name, controllers[name]).needs_internal_model)
+
+    etas = list(config["disturbances"]["eta"])
+    replicates = int(config["training"]["replicates"])
+    check_grid_size(config["study"], etas, uses_internal, source, replicates)
+    return canonical(study_runs(config["study"], etas, uses_internal, replicates))

@@ -3,40 +3,49 @@ draw, and each draw's training record (loss.csv, meta.json) for the health check
 
 from __future__ import annotations
 
-import re
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
 from cape.errors import CapeError
 from cape.io import read_csv
+from cape.layout.names import replicate_name
 
 
 def read_replicate_tables(
-    paths: str | Sequence[str], model_root: str | Path | None = None
+    replicates: str | Sequence[int],
+    table_paths: str | Sequence[str],
+    model_root: str | Path | None = None,
 ) -> dict[int, pd.DataFrame]:
-    """Replicate → table, from ``results/tables/rep<r>/<table>.csv`` paths (comma-separated in
-    a notebook's parameter). With ``model_root``, each row must have been computed from its
+    """Replicate → table: ``table_paths[i]`` is draw ``replicates[i]``'s (comma-separated in
+    a notebook's parameters). With ``model_root``, each row must have been computed from its
     replicate's current model in ``model_root/rep<r>/<model>`` (the table's ``replicate`` and
     ``weights_sha256`` columns, written by ``cape openloop`` and ``cape complexity``);
     ``CapeError`` names the table, the model and the fix otherwise."""
-    items = paths.split(",") if isinstance(paths, str) else list(paths)
+    draws = [int(r) for r in _items(replicates)]
+    items = [str(p) for p in _items(table_paths)]
+    if len(draws) != len(items):
+        raise CapeError(
+            f"{len(items)} table(s) for {len(draws)} replicate(s) ({', '.join(map(str, draws))}):"
+            " give one table per replicate, in the same order"
+        )
     tables = {}
-    for item in (p for p in items if p):
-        match = re.fullmatch(r"rep([0-9]+)", Path(item).parent.name)
-        if match is None:
-            raise CapeError(f"{item}: not a replicate's table (…/rep<r>/<table>.csv)")
+    for replicate, item in zip(draws, items, strict=True):
         table = read_csv(
             item,
             f"build it (snakemake --cores 2 {item})",
             "unreadable ({reason}); delete it and rebuild it",
         )
-        replicate = int(match.group(1))
         if model_root is not None:
             check_table_models(table, item, replicate, Path(model_root))
         tables[replicate] = table
     return tables
+
+
+def _items(value: str | Sequence[Any]) -> list[Any]:
+    return [p for p in value.split(",") if p] if isinstance(value, str) else list(value)
 
 
 def check_table_models(table: pd.DataFrame, path: str, replicate: int, model_root: Path) -> None:
@@ -52,7 +61,7 @@ def check_table_models(table: pd.DataFrame, path: str, replicate: int, model_roo
             f"{path}: records no model weights (written by an earlier version of cape); {fix}"
         )
     for row in table.itertuples(index=False):
-        folder = model_root / f"rep{replicate}" / str(row.model)
+        folder = Path(model_root, replicate_name(replicate), str(row.model))
         digest = str(read_meta(folder).get("weights_sha256") or "")
         made, found = row.replicate, str(row.weights_sha256)
         if pd.isna(made) or int(made) != replicate or found != digest:
@@ -73,7 +82,7 @@ def read_trainings(
     losses, best = {}, {}
     for r in replicates:
         for m in models:
-            losses[(r, m)], meta = read_training(Path(model_root, f"rep{r}", m))
+            losses[(r, m)], meta = read_training(Path(model_root, replicate_name(r), m))
             best[(r, m)] = float(meta["best_val_loss"])
     return losses, best
 
@@ -85,4 +94,5 @@ def read_draws(
     it was chosen among: ``cape draw``), for cape.models.health's tables."""
     from cape.models.trained import read_meta
 
-    return {(r, m): read_meta(Path(model_root, f"rep{r}", m)) for r in replicates for m in models}
+    draws = [(r, m) for r in replicates for m in models]
+    return {(r, m): read_meta(Path(model_root, replicate_name(r), m)) for r, m in draws}

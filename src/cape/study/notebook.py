@@ -17,10 +17,11 @@ import pandas as pd
 
 from cape.config import config_from_args
 from cape.errors import CapeError
+from cape.layout import paths
+from cape.layout.record import read_series
+from cape.layout.runs import RunId
 from cape.plots.style import PNG_DPI, save_figure
-from cape.study.grid import RunId
 from cape.study.outputs import declared
-from cape.study.record import read_series
 from cape.tables import number_formats, to_html, to_markdown, write_table
 
 SCREEN_DPI = 100
@@ -82,15 +83,28 @@ def run_dir(root: str | Path, row: Mapping[str, Any]) -> Path:
     return run.folder(root)
 
 
-def run_series(root: str | Path, row: Mapping[str, Any]) -> pd.DataFrame:
+def run_series(row: Mapping[str, Any], series_paths: str = "") -> pd.DataFrame:
     """The time series of the run described by ``row``, checked against the digest its
-    metrics recorded (a damaged run is one message naming its folder, not a traceback)."""
-    return read_series(run_dir(root, row))
+    metrics recorded (a damaged run is one message naming its folder, not a traceback).
+    ``series_paths``: the series files the notebook's rule declares (comma-separated); a run
+    whose series is not among them is refused, since the workflow does not make it for this
+    notebook. Empty (a notebook run by hand): any run under ``results/runs``."""
+    folder = run_dir(paths.RUNS, row)
+    declared_files = [item for item in series_paths.split(",") if item]
+    if declared_files and str(folder / "timeseries.parquet") not in declared_files:
+        raise CapeError(
+            f"{folder}: the notebook reads this run's series, but its rule does not declare it "
+            "(common.smk's example_series); add it there"
+        )
+    return read_series(folder)
 
 
-def series_of(root: str | Path, runs: pd.DataFrame) -> dict[tuple[str, str], pd.DataFrame]:
+def series_of(runs: pd.DataFrame, series_paths: str = "") -> dict[tuple[str, str], pd.DataFrame]:
     """(model, controller) → the time series of each run in ``runs`` (one per pair)."""
-    return {(row["model"], row["controller"]): run_series(root, row) for _, row in runs.iterrows()}
+    return {
+        (row["model"], row["controller"]): run_series(row, series_paths)
+        for _, row in runs.iterrows()
+    }
 
 
 def _declared(stem: str) -> None:

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from cape.layout.names import PlantName
 from cape.study.claims import (
     BICYCLE,
     CLOSED_LOOP,
@@ -374,7 +375,8 @@ def _bicycle(
     for model, anchor in claim.best.items():
         name = labels.get(str(anchor["controller"]), str(anchor["controller"]))
         paper = f"{name}, η ≤ {anchor['max_eta']:g}, {anchor['lap_time']:.2f} s"
-        match = best[best["model"] == f"{model}-fixed"] if "model" in best else best
+        fixed = str(PlantName("fixed", model))
+        match = best[best["model"] == fixed] if "model" in best else best
         if match.empty:
             why = f"no run of {model.upper()}-fixed in a bicycle study of this target (replicate 0)"
             _not_evaluated(ev, claim.name, f"{model.upper()} (fixed)", paper, why)

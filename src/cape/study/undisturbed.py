@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from cape.study.record import read_series
+from cape.layout.names import TRUTH
+from cape.layout.record import read_series
 from cape.vehicle.dynamics import slip_angles
 from cape.vehicle.params import GROUND_TRUTH
 
@@ -75,7 +76,7 @@ def undisturbed(
     runs: pd.DataFrame,
     study: str,
     failed: Mapping[int, Mapping[str, str]],
-    truth_plant: str = "truth",
+    truth_plant: str = TRUTH,
     root: str | Path = ".",
 ) -> tuple[pd.DataFrame, list[str]]:
     """Laps at η = 0 per replicate and plant of ``study`` (columns: controllers, cells

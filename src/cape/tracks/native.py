@@ -18,6 +18,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from cape.layout.paths import SOLVERS
 from cape.tracks import geometry
 from cape.tracks.geometry import ClosedPath, Projection
 
@@ -59,7 +60,7 @@ def compile_kernel(settings: Mapping[str, Any]) -> Path | None:
     if shutil.which(compiler) is None:
         return None
     flags = [*(str(f) for f in settings.get("flags", ["-O1"])), *EXACT_FLAGS]
-    cache = Path(str(settings.get("cache", "results/solvers")))
+    cache = Path(str(settings.get("cache", SOLVERS)))
 
     def generate(folder: Path) -> Path:
         target = folder / SOURCE.name

@@ -4,7 +4,7 @@
 (the aggregation, the notebooks, ``cape plot-rollout``) goes through ``read_metrics``,
 ``read_timing`` and ``read_series`` here, which refuse a folder whose files do not fit:
 
-- ``metrics.json`` must match its schema (``workflow/schemas/metrics.schema.yaml``: every field
+- ``metrics.json`` must match its schema (``cape/schemas/metrics.schema.yaml``: every field
   a table reads, with its type), the checksum it carries (``sha256``, over the rest: a
   hand-edited value is refused), and, where the folder names a run, that run (a copy of
   another run's metrics is refused);
@@ -29,14 +29,13 @@ from typing import Any
 
 import numpy as np
 
-from cape.config import REPO_ROOT
+from cape import schemas
 from cape.errors import CapeError
 from cape.integrity import check_record, sealed_record
 from cape.io import write_bytes
+from cape.layout.runs import RunId
 from cape.parquet import parquet_bytes
-from cape.study.grid import RunId
 
-METRICS_SCHEMA = REPO_ROOT / "workflow" / "schemas" / "metrics.schema.yaml"
 SERIES_KEY = "series_sha256"
 
 
@@ -80,12 +79,7 @@ def _read_json(path: Path, missing: str, fix: str) -> Any:
 
 @cache
 def _validator() -> Any:
-    import yaml
-
-    from cape.config import _jsonschema
-
-    schema = yaml.safe_load(METRICS_SCHEMA.read_text())
-    return _jsonschema().Draft202012Validator(schema)
+    return schemas.validator(schemas.load_schema(schemas.METRICS))
 
 
 def read_metrics(path: Path, expected: RunId | None = None) -> dict[str, Any]:
@@ -103,7 +97,7 @@ def read_metrics(path: Path, expected: RunId | None = None) -> dict[str, Any]:
         more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
         raise CapeError(
             f"{path}: field `{field}`: {first.message}{more}; not a run's metrics as "
-            f"`cape rollout` writes them ({METRICS_SCHEMA.relative_to(REPO_ROOT)}); {fix}"
+            f"`cape rollout` writes them ({schemas.shown(schemas.METRICS)}); {fix}"
         )
     check_record(metrics, path, fix)
     if expected is None:

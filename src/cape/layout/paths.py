@@ -1,0 +1,119 @@
+"""Where CAPE's files live: every folder and file name the workflow, the ``cape`` commands and
+the notebooks share, spelled here once.
+
+Each location is a template whose ``{fields}`` are the workflow's wildcards of the same name
+(``str.format`` fills them; Snakemake reads them as wildcards), and a function fills it for a
+caller that knows the values. Everything is relative to the working directory, the
+checkout's root when run by Snakemake.
+"""
+
+from __future__ import annotations
+
+from cape.layout.names import REPLICATE_PREFIX, replicate_name
+
+RESULTS = "results"
+REP = REPLICATE_PREFIX + "{replicate}"
+"""A training replicate (draw) as a folder name, a wildcard pattern."""
+
+
+def _under(*parts: str) -> str:
+    return "/".join((RESULTS, *parts))
+
+
+# --- inputs and the model stage ------------------------------------------------------------
+DATASET = _under("data", "DYN-PP-{track}.npz")
+RACELINE = _under("raceline", "{track}.npz")
+TRAINING = _under("trainings", "{model}", "seed{training_seed}")
+"""One training of a model (its k-th: seed training.seed + k): model.pt, meta.json, loss.csv,
+health.json."""
+MODELS = _under("models")
+MODEL = _under("models", REP, "{model}")
+"""A model's draw r: the training chosen for it, its frozen Φ and exported network."""
+SOLVERS = _under("solvers")
+SOLVER = _under("solvers", REP, "{controller}", "{internal}.json")
+REPLICATE_TABLES = _under("tables", REP)
+"""Tables of one draw's models (tables 1 and 4)."""
+
+# --- the closed loop and the study -------------------------------------------------------
+RUNS = _under("runs")
+FIGURES = _under("figures")
+TABLES = _under("tables")
+NOTEBOOKS = _under("notebooks")
+LOGS = _under("logs")
+BENCHMARKS = _under("benchmarks")
+ROLLOUT_FIGURES = _under("figures", "rollout")
+
+DEFAULT_SCOPE = RESULTS
+"""The default target's summaries (replicate 0)."""
+REPLICATES_SCOPE = _under("replicates")
+"""The ``replicates`` target's summaries (every draw)."""
+STUDY_RUNS = "{scope}/study/runs.parquet"
+STUDY_SUMMARY = "{scope}/study/summary.parquet"
+GLANCE = "{scope}/RESULTS.md"
+
+
+def dataset(track: str) -> str:
+    return DATASET.format(track=track)
+
+
+def raceline(track: str) -> str:
+    return RACELINE.format(track=track)
+
+
+def training_dir(model: str, training_seed: int) -> str:
+    return TRAINING.format(model=model, training_seed=int(training_seed))
+
+
+def model_dir(model: str, replicate: int = 0) -> str:
+    return MODEL.format(model=model, replicate=int(replicate))
+
+
+def models_of(replicate: int = 0) -> str:
+    """The folder of one draw's models (``results/models/rep<r>``)."""
+    return f"{MODELS}/{replicate_name(replicate)}"
+
+
+def solver(controller: str, internal: str, replicate: int) -> str:
+    return SOLVER.format(controller=controller, internal=internal, replicate=int(replicate))
+
+
+def replicate_table(replicate: int, name: str) -> str:
+    """Table ``name`` (a .csv) of draw ``replicate``'s models."""
+    return f"{REPLICATE_TABLES.format(replicate=int(replicate))}/{name}.csv"
+
+
+def study_runs(scope: str = DEFAULT_SCOPE) -> str:
+    return STUDY_RUNS.format(scope=scope)
+
+
+def study_summary(scope: str = DEFAULT_SCOPE) -> str:
+    return STUDY_SUMMARY.format(scope=scope)
+
+
+def glance(scope: str = DEFAULT_SCOPE) -> str:
+    return GLANCE.format(scope=scope)
+
+
+def scoped(scope: str, kind: str, *parts: str) -> str:
+    """``<scope>/<kind>/<parts>``: a scope's tables, figures, notebooks, logs or benchmarks."""
+    return "/".join((scope, kind, *parts))
+
+
+def figures(*parts: str) -> str:
+    return "/".join((FIGURES, *parts))
+
+
+def tables(*parts: str) -> str:
+    return "/".join((TABLES, *parts))
+
+
+def notebooks(*parts: str) -> str:
+    return "/".join((NOTEBOOKS, *parts))
+
+
+def log(*parts: str) -> str:
+    return "/".join((LOGS, *parts))
+
+
+def benchmark(*parts: str) -> str:
+    return "/".join((BENCHMARKS, *parts))
