@@ -847,3 +847,37 @@ def test_a_kernel_pin_is_refused_once_pytorch_is_loaded(monkeypatch) -> None:
     with pytest.raises(CapeError, match=r"training\.kernels: PyTorch is already loaded"):
         pin_before_torch({"mkl_cbwr": "AVX2", "aten_capability": None})
     pin_before_torch({"mkl_cbwr": None})  # nothing pinned: nothing to refuse
+
+
+def test_a_plain_install_works_outside_the_checkout(setup: dict, tmp_path: Path) -> None:
+    """`pip install .` (not editable) into a folder of its own: from outside the checkout,
+    `cape --help`, a rollout with a config file and the config's validation all work, reading
+    the schemas from the installed package (never REPO_ROOT/workflow)."""
+    target, elsewhere = tmp_path / "site", tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    built = subprocess.run(
+        [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation",
+         "--target", str(target), str(REPO_ROOT)],
+        capture_output=True, text=True, timeout=300, cwd=elsewhere,
+    )  # fmt: skip
+    assert built.returncode == 0, built.stderr[-2000:]
+    assert (target / "cape" / "schemas" / "config.schema.yaml").is_file()
+    env = {**os.environ, "PYTHONPATH": str(target)}
+
+    def installed(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "cape.cli", *args], cwd=elsewhere, env=env,
+                              capture_output=True, text=True, timeout=300)  # fmt: skip
+
+    where = subprocess.run([sys.executable, "-c", "import cape; print(cape.__file__)"],
+                           cwd=elsewhere, env=env, capture_output=True, text=True)  # fmt: skip
+    assert where.stdout.strip().startswith(str(target)), where.stdout + where.stderr
+    assert installed("--help").returncode == 0
+    out = tmp_path / "run"
+    made = installed(*rollout_args(setup, out)[1:])
+    assert made.returncode == 0, made.stderr[-2000:]
+    assert json.loads((out / "metrics.json").read_text())["success"] is True
+    bad = tmp_path / "bad.yaml"
+    study = {**setup["cfg"]["study"], "seeds": -1}
+    bad.write_text(yaml.safe_dump({**setup["cfg"], "study": study}))
+    refused = installed(*rollout_args(setup, tmp_path / "none", config=bad)[1:])
+    one_message(refused, "study.seeds", "cape/schemas/config.schema.yaml")
