@@ -1,9 +1,9 @@
 """CasADi functions called through ``Function.buffer()`` on preallocated arrays.
 
 A call of a CasADi function with arguments converts every input and output at the Python
-boundary (about 50–90 µs); through its buffer, on arrays bound once, a call is about 1–12 µs.
-The closed loop's per-step numerics (the plant's step, the EKF's prediction, the NMPC's solver)
-run thousands of times per lap, so they call their functions this way.
+boundary; through its buffer, on arrays bound once, nothing is converted (the difference:
+docs/design.md). The closed loop's per-step numerics (the plant's step, the EKF's prediction,
+the NMPC's solver) run thousands of times per lap, so they call their functions this way.
 """
 
 from __future__ import annotations

@@ -1,12 +1,11 @@
 """Compile the package's modules to bytecode once, before the workflow's jobs start.
 
-Why: each job is a fresh interpreter that imports some 40 of CAPE's modules. Python normally
-caches their bytecode in ``__pycache__`` on first import, but where ``PYTHONDONTWRITEBYTECODE``
-is set (as in many containers and CI images, and on the machine the study was timed on) nothing
-is cached and every job compiles those modules from source again: 40–60 ms of a PID job's
-0.4 s. Python still *reads* bytecode when that variable is set, so writing it once from the
-main Snakemake process (``compileall``, which checks each file's timestamp and skips what is
-current) lets every job load it. Editing a module invalidates its bytecode as usual."""
+Each job is a fresh interpreter that imports some 40 of CAPE's modules. Where
+``PYTHONDONTWRITEBYTECODE`` is set (many containers and CI images) Python caches no bytecode, and
+every job would compile them from source again. Python still *reads* bytecode when that
+variable is set, so writing it once from the main Snakemake process (``compileall``, which
+skips what is current) lets every job load it. Editing a module invalidates its bytecode as
+usual. What it saves: docs/design.md."""
 
 from __future__ import annotations
 

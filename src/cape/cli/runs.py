@@ -106,9 +106,8 @@ def _rollout_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _percentile(ordered: Any, q: float) -> float:
-    """``np.percentile(values, q)`` (linear interpolation) of already sorted values. Why not
-    NumPy's: its first call imports ``numpy.ma`` (via ``np.unique``), 10–15 ms of every job
-    for four numbers."""
+    """``np.percentile(values, q)`` (linear interpolation) of already sorted values, without
+    NumPy's, whose first call imports ``numpy.ma`` in every job for four numbers."""
     position = q / 100 * (len(ordered) - 1)
     low = int(position)
     high = min(low + 1, len(ordered) - 1)

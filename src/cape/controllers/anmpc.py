@@ -9,8 +9,8 @@ nominal values and the difference is added to that force (``InternalModel.correc
 
 The loss and its finite differences are one CasADi function built with the NLP, so an update
 costs one call, not 4·``every`` model steps in Python; it is cached serialised beside the
-compiled solvers (``cape.compiled.serialized_function``), since building its 4·``every`` model
-steps costs about 0.1 s of every job.
+compiled solvers (``cape.compiled.serialized_function``), so a job loads it instead of
+building its 4·``every`` model steps.
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ solve is warm-started from the shifted previous solution.
 
 Two formulations of that problem, chosen by ``solver``: ``sqp`` (the default) eliminates the
 states and solves the condensed problem with a feasible-iterate SQP (``cape.controllers.sqp``);
-``ipopt`` (the reference) and ``sqpmethod`` (CasADi's SQP, the old default) solve the
+``ipopt`` (the reference) and ``sqpmethod`` (CasADi's SQP) solve the
 multiple-shooting NLP (``nlp``, ``cape.controllers.shooting``). When the internal model has no
 throttle path (DPM predicts Frx), only the steering is optimised and the throttle comes from the
 PID speed loop. When the SQP does not converge, a rescue solves the same problem from its last
@@ -305,7 +305,7 @@ class NominalNMPC(Controller):
 
     def _build(self) -> None:
         """The solver of the settings' ``solver``: ``sqp`` (the condensed SQP, the default),
-        ``ipopt`` (the reference) or ``sqpmethod`` (CasADi's SQP, the old default), the last
+        ``ipopt`` (the reference) or ``sqpmethod`` (CasADi's SQP), the last
         two on the multiple-shooting NLP."""
         s, name = self.settings, str(self.settings["solver"])
         compile_settings = s.get("compile")

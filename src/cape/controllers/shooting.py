@@ -176,7 +176,7 @@ def check_ipopt_options(options: Mapping[str, Any], where: str) -> None:
 
 
 def sqpmethod_options(max_iter: int, tol: float, qp_max_iter: int) -> dict[str, Any]:
-    """CasADi's SQP as the old default ran it: exact Hessian, no convexification, qrqp."""
+    """CasADi's SQP: exact Hessian, no convexification, qrqp."""
     quiet = {"print_iter": False, "print_header": False, "print_info": False}
     return {
         "qpsol": "qrqp",

@@ -1,41 +1,37 @@
-"""The NMPC's default solver: a condensed SQP whose iterates stay feasible (SPEC §7.3).
+"""The NMPC's default solver: a condensed SQP with a trust region, every iterate feasible
+(SPEC §7.3).
 
-The optimal control problem is the NMPC's own (``NominalNMPC.stage_terms``: cost, soft track
-constraint, rate and input bounds, the internal model's step); only its formulation differs
-from the multiple-shooting NLP that IPOPT solves. The states are eliminated (single shooting:
-``x_{k+1} = step(x_k, u_k)`` from the measured x_0), so the decision variables are the N inputs
-and the N slacks of the soft track constraint, and every QP is small and dense.
+The optimal control problem is the NMPC's own (``stage_terms``: cost, soft track constraint,
+rate and input bounds; ``step``: the internal model); only its formulation differs from the
+multiple-shooting NLP of the rescue solvers. The states are eliminated (single shooting from
+the measured x_0), so the decision variables are the N inputs and the N slacks of the soft
+track constraint, and every QP is small and dense. What a solve does:
 
-Why not CasADi's ``sqpmethod`` on the multiple-shooting NLP (the old default): under
-disturbance the measured state jumps away from the previous plan (at η = 4 the position noise
-alone is 4 % of |X|, several centimetres), so the shifted warm start violates the dynamics by up
-to 1 rad/s in ω and 0.2 m in X. With the exact Hessian the QPs are indefinite; ``sqpmethod``'s
-merit line search gives up after three halvings and takes the step anyway, so the iterates cycle
-(primal infeasibility between 0.07 and 1.3 for 50 iterations) or stall ("search direction
-becomes too small"). Gauss–Newton Hessians and more line-search iterations were measured and do
-not fix it. (docs/closed-loop.md has the numbers.)
+- **Feasible iterates.** The warm start (the previous plan shifted) is projected onto the
+  input and rate bounds (``prepare``), and after every step the slacks are reset to the least
+  feasible value ``ε_k = max(0, |offset_k(u)| − bound)``: the solve minimises one function of
+  the inputs, the merit ``F(u) = cost(u, ε(u))``, over a polytope.
+- **A convexified exact Hessian.** Each QP's Hessian is the Lagrangian's exact Hessian in the
+  inputs plus ``κ·aaᵀ`` for every constraint row ``a`` active at the iterate (positive definite
+  where that constraint forbids the indefinite directions); where its Cholesky factorisation
+  still fails, the Gauss–Newton matrix of the least-squares cost replaces it. daqp (a dual
+  active-set solver) solves the QP.
+- **A trust region, not a line search.** The step is bounded by a radius in units of each
+  input's range; a step is accepted when F falls by at least ``RATIO_ACCEPT`` of the QP's
+  predicted decrease, and the ratio of actual to predicted decrease grows or shrinks the radius.
+  A rejected step first gets a second-order correction of the track offsets (against the
+  Maratos effect) before the region shrinks.
+- **Few Python calls.** Each linearisation, QP and trial point is one CasADi function called
+  through ``Function.buffer()`` on preallocated arrays; the functions are compiled C, built
+  once per problem structure and cached.
 
-What this solver does instead:
-
-- **Every iterate is feasible.** Single shooting satisfies the dynamics by construction; the
-  warm start is projected onto the input and rate bounds (``prepare``), and after every step the
-  slacks are reset to the least feasible value, ``ε_k = max(0, |offset_k(u)| − bound)``. The
-  problem thus becomes the minimisation of one continuous function of the inputs,
-  ``F(u) = cost(u, ε(u))``, over a polytope.
-- **Convex QPs.** The Hessian is the Gauss–Newton matrix of the least-squares cost (positions,
-  input changes, the slacks' quadratic penalty), positive definite through the input-change and
-  slack weights, so each QP (daqp, a dual active-set solver) has one solution, and its step is a
-  descent direction of F.
-- **A real line search.** Armijo backtracking on F with the QP's predicted decrease, over a
-  ladder of step lengths evaluated in one call: with feasible iterates no penalty parameter is
-  needed, and F decreases monotonically.
-- **Few Python calls.** Each iteration (linearise, QP, line search) is one CasADi function
-  called through ``Function.buffer()`` on preallocated arrays; the problem's functions are
-  compiled C, built once per model structure and cached like the NLP libraries.
-
-A solve succeeds when a full step shorter than ``tol`` (∞-norm of the input change) is
-accepted. It fails only when ``max_iter`` iterations pass or the line search finds no decrease;
-then the controller falls back (SPEC §7.3) and the solver cold-starts the next step.
+``stats.status`` is ``converged`` (an accepted step shorter than ``tol``, or than
+``newton_tol`` in Newton's quadratic regime, or no decrease left above rounding) or one of the
+failures: ``max_iter``, ``no_decrease`` (the region shrank below ``RADIUS_MIN``),
+``not_finite`` (the internal model's prediction left the floats), ``qp_failed`` (daqp returned
+no solution); before any solve it is ``not solved``. After a failure the next solve starts
+cold; the controller's rescue and fallback are its own (``cape.controllers.nmpc``). Why this
+solver and not CasADi's ``sqpmethod``, with the measurements: docs/closed-loop.md.
 """
 
 from __future__ import annotations
@@ -226,7 +222,7 @@ class CondensedSQP:
         # there, e.g. the measured car far outside the track), ``lin_gn`` replaces it with the
         # Gauss–Newton matrix, positive definite through the input-change and slack weights.
         nu = ca.SX.sym("nu", n)  # multipliers of the offsets (upper minus lower side)
-        h_uu, g_u = ca.hessian(cost + ca.dot(nu, offsets), uv)
+        h_uu, _ = ca.hessian(cost + ca.dot(nu, offsets), uv)  # the Lagrangian's curvature
         g_u = ca.gradient(cost, uv)
         h_ee, g_e = ca.hessian(cost, ev)
         kappa = ACTIVE_WEIGHT * ca.sum1(ca.fabs(ca.diag(h_uu))) / n_u

@@ -3,19 +3,11 @@ the physics guard in a single call of C code, cached per trained model (``rollou
 
 The library holds two parts. The scaling and the GRU are CasADi's code of the same SX function
 the uncompiled path evaluates in CasADi's virtual machine (``NumpyNetwork.front_function``).
-The trunk and the guard are C written here, because CasADi's own code for them is far from
-the ≤ 0.15 ms a prediction the closed loop needs for EPM (measured on the 2-core machine, one
-process; README, "Fast inference without PyTorch"):
-
-- its dense matrix–vector product (MX ``mtimes``) is a scalar dot product per output, one
-  chain of dependent additions, which no optimisation level vectorises: ≥ 0.95 ms for EPM's
-  7 × 384 trunk, in its virtual machine 1.5 ms; SX would unroll millions of products;
-- it writes constants as decimal literals, which gcc parses slowly (DDM's 2.8 million weights:
-  about 20 s of CPU); here they are the bytes of string literals (about 1 s);
-- accumulating in float64 from float32 weights is bound by the conversions (0.15 ms for EPM's
-  trunk alone). So the trunk runs in float32, as the training graph and the uncompiled NumPy
-  trunk do, in 8 lanes (GCC's vector extensions, compiled for AVX2 and FMA as well where the
-  compiler can dispatch at load time: ``target_clones``), and the guard in float64.
+The trunk and the guard are C written here: the trunk in float32, as the training graph and
+the uncompiled NumPy trunk compute it, in 8 lanes (GCC's vector extensions, with an AVX2 + FMA
+clone picked at load time: ``target_clones``), its weights compiled in as the bytes of string
+literals; the guard in float64. Why not CasADi's own code for the trunk, with the timings:
+docs/design.md ("Fast inference without PyTorch") and docs/models.md.
 
 The generated code depends on this module's source, which is part of the cache key.
 """
@@ -25,15 +17,13 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import casadi as ca
 import numpy as np
 
 from cape.compiled import cached_library, generated
-
-if TYPE_CHECKING:
-    from cape.models.network import Layer
+from cape.models.trunk import Layer
 
 LANES = 8
 """float32 lanes of one vector: rows of the weights are padded with zeros to a multiple."""
@@ -166,8 +156,8 @@ def trunk_code(
 
 ACTIVATIONS: dict[str, Callable[[str], str]] = {
     # in float32, as PyTorch computes them: GELU exact (erf); Mish x·tanh(softplus(x)) written
-    # with one exp, tanh(log(1 + t)) = n / (n + 2) for n = t·(t + 2), t = eˣ (three libm calls
-    # cost DDM 0.4 ms a prediction), and x itself past 20, where tanh(softplus(x)) rounds to 1
+    # with one exp, tanh(log(1 + t)) = n / (n + 2) for n = t·(t + 2), t = eˣ (one libm call
+    # instead of three), and x itself past 20, where tanh(softplus(x)) rounds to 1
     # (and n would overflow); ReLU keeps a NaN, like torch.relu
     "gelu": lambda y: f"{y}[i] = 0.5f * {y}[i] * (1.0f + erff({y}[i] * 0.70710678118654752f))",
     "mish": lambda y: f"{y}[i] = cape_mish({y}[i])",

@@ -1,15 +1,13 @@
 """The learned models' network without PyTorch: what the closed loop runs.
 
-The closed loop asks for Φ of one window thousands of times per run, and a rollout job is a
-process of its own, so two costs matter: the per-window time and the start-up. At batch size
-one PyTorch's per-operation overhead dominates (its GRU runs 49–80 tiny cells of about 20
-operations each: milliseconds per window), and importing it costs seconds per job. So the
-trained weights are exported once to ``network.npz`` (``LearnedModel.network_arrays``) and run
-here, two ways:
+The closed loop asks for Φ of one window thousands of times per run, in a process of its own
+per run, where PyTorch's per-operation overhead and import time would dominate (the numbers:
+docs/design.md). So the trained weights are exported once to ``network.npz``
+(``LearnedModel.network_arrays``) and run here, two ways:
 
 - compiled (``rollout.compile``, the default): the whole prediction, scaled window → GRU stack
   → trunk → guard, as one C function, cached per trained model (``cape.models.compiled_phi``;
-  ``cape export-network`` builds it): one call, 0.11–0.16 ms for EPM with its weights in cache;
+  ``cape export-network`` builds it);
 - uncompiled (no compiler, or ``enabled: false``, as the smoke configuration runs it): the
   scaling and the GRU as the same CasADi function in CasADi's virtual machine, and the trunk
   as NumPy float32 matrix–vector products, like the training graph. This NumPy trunk is the
@@ -23,7 +21,6 @@ from __future__ import annotations
 
 import zipfile
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -36,24 +33,13 @@ from cape.integrity import check_arrays, sealed_arrays
 from cape.io import save_npz
 from cape.models.compiled_phi import FRONT, compiled_phi
 from cape.models.physics import N_FEATURES
+from cape.models.trunk import KINDS, Layer
 
 Array = np.ndarray
 NETWORK_FORMAT = 1
 """Version of ``network.npz``'s layout; a file of another version is rejected with the fix."""
 
 
-@dataclass(frozen=True)
-class Layer:
-    """One layer of the trunk as exported: ``linear`` (weight in × out, bias), ``layer_norm``
-    (weight, bias, eps) or an activation (``mish``, ``gelu``, ``relu``, ``tanh``), float32."""
-
-    kind: str
-    weight: Array | None = None
-    bias: Array | None = None
-    eps: float = 0.0
-
-
-KINDS = ("linear", "layer_norm", "mish", "gelu", "relu", "tanh")
 
 
 def gru_stack(x: ca.SX, w_ih0: Array, w_ih: Array, w_hh: Array, b_ih: Array, b_hh: Array) -> ca.SX:

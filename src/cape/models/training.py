@@ -29,8 +29,8 @@ from cape.models.base import LearnedModel
 from cape.models.registry import build_physics
 
 TRAINING_STEP = 2
-"""Version of the training step's arithmetic (1: issue 15's, the batch loss eager around a
-compiled forward; 2: the whole padded-batch loss compiled, the GRU stage by stage). It is part
+"""Version of the training step's arithmetic (1: the batch loss eager around a compiled
+forward; 2: the whole padded-batch loss compiled, the GRU stage by stage). It is part
 of a checkpoint's fingerprint, so a training never resumes on another step's float path, and
 ``meta.json`` records it."""
 
@@ -238,10 +238,10 @@ def train_model(
 class AdamStep:
     """``optimiser.step()`` of a fused Adam on the CPU without its per-step Python bookkeeping.
 
-    Why: ``Optimizer.step`` re-groups the parameters by device and type, looks their state up
-    and runs its hooks and profiling scopes on every call, about 0.3–0.5 ms a step on one
-    thread (5 % of EPM's compiled step, 5–10 % of DPM's). This calls the same two operations
-    (``_foreach_add_`` of the step counts, then ``_fused_adam_``) with the same arguments, so
+    ``Optimizer.step`` re-groups the parameters by device and type, looks their state up and
+    runs its hooks and profiling scopes on every call (its cost: docs/design.md). This calls
+    the same two operations (``_foreach_add_`` of the step counts, then ``_fused_adam_``) with
+    the same arguments, so
     the update is the same bit for bit (tests/test_training.py); the state stays the
     optimiser's own, so its ``state_dict`` (the resumable checkpoint) is unchanged. It falls
     back to ``optimiser.step()`` whenever it is not that case: another optimiser or options,

@@ -1,4 +1,4 @@
-"""Three-valued verdicts from intervals whose unit is the training draw (SPEC §10, turn 4).
+"""Three-valued verdicts from intervals whose unit is the training draw (SPEC §10).
 
 An effect (EPM's lap time minus DDM's, a relative error, a difference of failure counts) is
 measured once per (training draw, disturbance seed), the two models' runs paired by seed. The
@@ -8,16 +8,15 @@ seeds, then the interval is Student's t over the draws' effects with R − 1 deg
 degrees of freedom): a statement about one trained network, never about its class. A single
 value, or values that do not vary, give a point.
 
-Why not a bootstrap: a percentile bootstrap over three draws cannot estimate the spread between
-them; it excluded zero in 18–21 % of simulated null trials at R = 3 (docs/study.md, the
-calibration test in tests/test_verdicts.py). The t-interval stays at the nominal 5 %.
+Why Student's t and not a bootstrap, with the simulated error rates: docs/study.md (the
+calibration test in tests/test_verdicts.py checks them).
 
 A verdict compares the interval with zero on the paper's side: ``holds`` when it lies wholly
 there, ``contradicted`` when it lies wholly on the other side, ``inconclusive`` when it
 contains zero. An ordering (EPM < DDM < DPM) is each of its pairwise differences: it holds
 when all hold, is contradicted when any is, and is inconclusive otherwise.
 
-Enough evidence (SPEC §10, revision 5): an interval from one value, or from values that do not
+Enough evidence: an interval from one value, or from values that do not
 vary, is a point, and a point decides nothing about a random quantity: ``verdict`` calls it
 inconclusive and ``Interval.why`` says why ("one value", "no spread over 3 draws"). Only a row
 declared exact (``exact_verdict``: parameter counts, the deterministic bicycle comparison)
