@@ -163,7 +163,7 @@ class AcadosNMPC:
 
         self.controller = controller
         self.kind = kind
-        s, layout = controller.settings, controller.layout
+        s, layout = controller.settings, controller.ocp.layout
         n, n_phi = controller.horizon, controller.internal.n_phi
         self.n, self.nx, self.nu = n, 8 + 2, 2
         self.layout = layout
@@ -172,7 +172,7 @@ class AcadosNMPC:
         du = ca.SX.sym("du", self.nu)
         p = ca.SX.sym("p", self.n_p)
         # the stage's parameters in the controller's layout (stage_terms reads column 0)
-        full = ca.SX.zeros(controller.n_param)
+        full = ca.SX.zeros(controller.ocp.n_param)
         full[layout["phi"]] = p[:n_phi]
         full[layout["dhat"]] = p[n_phi : n_phi + 3]
         full[layout["theta"]] = p[n_phi + 3 : n_phi + 6]
@@ -181,9 +181,11 @@ class AcadosNMPC:
             start = layout[name].start
             full[start : start + 2] = p[geometry + 2 * j : geometry + 2 * j + 2]
         command_before, command = x[8:10], x[8:10] + du
-        step = controller.model_step(x[:8], command, full)
-        _, _, offset, residual = controller.stage_terms(x[:8], command, command_before, 0, full, 0)
-        _, _, _, terminal = controller.stage_terms(
+        step = controller.ocp.model_step(x[:8], command, full)
+        _, _, offset, residual = controller.ocp.stage_terms(
+            x[:8], command, command_before, 0, full, 0
+        )
+        _, _, _, terminal = controller.ocp.stage_terms(
             x[:8], command_before, command_before, 0, full, 0
         )
         model = AcadosModel()
@@ -397,7 +399,7 @@ class Contender:
 
     def statistics(self) -> dict[str, float]:
         if self.controller is not None:
-            return {"iterations": float(self.controller.backend.stats.iterations)}
+            return {"iterations": float(self.controller.solver.stats.iterations)}
         return {**self.solver.statistics(), "cost": self.solver.cost()}
 
 
@@ -447,7 +449,7 @@ def default_parts(controller: Any, problems: list[Problem]) -> dict[str, float]:
     linearisation, the Gauss–Newton fallback, the QP through CasADi's daqp, the line search's
     trial points): the median per solve of each, the rest being the Python of the SQP's loop
     (and the IPOPT rescue when one runs). The timers add ~0.1 µs per call."""
-    backend = controller.backend
+    backend = controller.solver
     spent: dict[str, float] = {}
     counts: dict[str, int] = {}
     saved = dict(backend._calls)
@@ -553,7 +555,7 @@ def benchmark_lap(
     results = [merged([r[j] for r in replays]) for j in range(len(contenders))]
 
     def merit(problem: Problem, plan: np.ndarray) -> float:
-        return default.backend.merit(*problem, plan)
+        return default.solver.merit(*problem, plan)
 
     def merit_at(i: int, plan: np.ndarray) -> float:
         return merit(problems[i], plan)

@@ -79,7 +79,7 @@ def replay(controller: Any, problems: list[Problem]) -> dict[str, np.ndarray]:
         start = time.perf_counter()
         plan, ok = controller.solve(x0, params, throttle)
         out["ms"][i] = (time.perf_counter() - start) * 1e3
-        out["iterations"][i] = controller.backend.stats.iterations
+        out["iterations"][i] = controller.solver.stats.iterations
         out["ok"][i] = ok
         if ok:
             out["first"][i] = plan[0]
@@ -93,10 +93,10 @@ def rebuild_every_step(controller: Any, problems: list[Problem], opts: dict) -> 
     times = np.empty(len(problems))
     for i, (x0, params, throttle) in enumerate(problems):
         start = time.perf_counter()
-        solver = ca.nlpsol("nmpc", "ipopt", controller.nlp(), opts)
-        lbg, ubg = controller.nlp_bounds()
+        solver = ca.nlpsol("nmpc", "ipopt", controller.ocp.nlp(), opts)
+        lbg, ubg = controller.ocp.nlp_bounds()
         backend = controller.rescue  # the multiple-shooting NLP's bounds and cold start
-        cold = backend.cold_start(x0, params[controller.layout["u_prev"]])
+        cold = backend.cold_start(x0, params[controller.ocp.layout["u_prev"]])
         _, lbx, ubx = backend._prepare(cold, x0, throttle, True)
         solver(x0=cold, p=params, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
         times[i] = time.perf_counter() - start

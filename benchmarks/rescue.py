@@ -49,7 +49,7 @@ def longer_sqp(controller: Any, max_iter: int) -> Any:
     try:
         clone = copy.copy(controller)
         clone._build()
-        return clone.backend
+        return clone.solver
     finally:
         settings["sqp"] = kept
 
@@ -88,7 +88,7 @@ def one_lap(
             plan, ok = solver.solve(x0, params, throttle, guess=start_at)
             record[cap] = (ok, (time.perf_counter() - start) * 1e3, solver.stats.iterations,
                            None if plan is None else np.asarray(plan[0]))  # fmt: skip
-        inputs, _ = controller.backend.iterate()  # where the failed SQP stopped
+        inputs, _ = controller.solver.iterate()  # where the failed SQP stopped
         for name, warm in (("sqp-warm", True), ("sqp-cold", False)):
             sqp.reset()
             if warm:

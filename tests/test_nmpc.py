@@ -54,14 +54,14 @@ def _run(cfg, solver="sqp", controller="nmpc", eta=0.0, **kw):
 def _recorded(run, limit: int | None = None) -> list[tuple]:
     """The lap's problems (x0, params, throttle) as the SQP received them, the first ``limit``."""
     problems: list[tuple] = []
-    real = run.controller.backend.solve
+    real = run.controller.solver.solve
 
     def record(x0, params, throttle):
         if limit is None or len(problems) < limit:
             problems.append((x0.copy(), params.copy(), throttle))
         return real(x0, params, throttle)
 
-    run.controller.backend.solve = record
+    run.controller.solver.solve = record
     run()
     return problems
 
@@ -136,7 +136,7 @@ def test_the_prediction_is_the_internal_models_own_rollout(cfg, solver) -> None:
     proj = line.project(x0[0], x0[1], None)
     controller.step(x0, proj, line.points(proj.s, controller.horizon))
     n = controller.horizon
-    xs, us = controller.backend.states(), controller._plan
+    xs, us = controller.solver.states(), controller._plan
     assert xs.shape == (n + 1, N_STATE) and us.shape == (n, 2)
     np.testing.assert_allclose(xs[0], np.r_[x0, 0.0, 0.0])
     x = np.r_[x0, 0.0, 0.0]
@@ -188,7 +188,7 @@ def test_a_prediction_that_leaves_the_floats_is_a_failed_solve_not_a_crash(cfg) 
     z[3] = 1e200
     u, info = controller.step(z, proj, ref)
     assert info["fallback"] and controller.fallbacks == 1
-    assert controller.backend.stats.status == "not_finite"
+    assert controller.solver.stats.status == "not_finite"
     assert np.all(np.isfinite(u))
 
 
@@ -242,7 +242,7 @@ def test_the_rescue_counts_the_solves_it_saved(cfg, rescue: str) -> None:
     as succeeded."""
     run = _run(_with_rescue(cfg, rescue))
     assert run.controller.rescue.library.name.startswith(f"{rescue}_nlp_")
-    backend = run.controller.backend
+    backend = run.controller.solver
     real = backend.solve
     calls = {"n": 0}
 
@@ -417,12 +417,12 @@ def test_a_missing_nmpc_setting_names_the_config_key(cfg) -> None:
 
 def test_the_library_key_follows_the_stage_costs_settings_only(cfg) -> None:
     """The three NMPCs share the nominal stage terms, so one key; a cost weight changes it."""
-    nominal = _run(cfg).controller
-    keys = {_run(cfg, controller=name).controller._terms_key() for name in ("anmpc", "rnmpc")}
-    assert keys == {nominal._terms_key()}
-    before = nominal._terms_key()
+    nominal = _run(cfg).controller.ocp
+    keys = {_run(cfg, controller=name).controller.ocp.terms_key() for name in ("anmpc", "rnmpc")}
+    assert keys == {nominal.terms_key()}
+    before = nominal.terms_key()
     nominal.settings = {**nominal.settings, "Q": 2.0}
-    assert nominal._terms_key() != before
+    assert nominal.terms_key() != before
 
 
 def test_the_adaptation_function_is_cached_and_the_same(cfg, solver_cache: Path) -> None:
@@ -449,17 +449,17 @@ def test_the_stagewise_nlp_is_the_same_problem(cfg) -> None:
     from cape.controllers.stagewise import stagewise_bounds, stagewise_index, stagewise_nlp
 
     run = _run(cfg)
-    c = run.controller
+    c = run.controller.ocp
     problems = _recorded(run)
-    n, n_state = c.horizon, c._ix.shape[1]
+    n, n_state = c.horizon, c.ix.shape[1]
     index = stagewise_index(n, n_state)
     lbg, ubg = stagewise_bounds(n, n_state, c.limits.max_steering_step(c.ts))
     original, stagewise = c.nlp(), stagewise_nlp(c)
     assert stagewise["g"].shape[0] == len(lbg) == len(ubg)
     f_o = ca.Function("o", [original["x"], original["p"]], [original["f"], original["g"]])
     f_s = ca.Function("s", [stagewise["x"], stagewise["p"]], [stagewise["f"], stagewise["g"]])
-    step = ca.Function("step", [original["x"][c._ix[0]], original["x"][c._iu[0]], original["p"]],
-                       [c.model_step(original["x"][c._ix[0]], original["x"][c._iu[0]],
+    step = ca.Function("step", [original["x"][c.ix[0]], original["x"][c.iu[0]], original["p"]],
+                       [c.model_step(original["x"][c.ix[0]], original["x"][c.iu[0]],
                                      original["p"])])  # fmt: skip
     rng = np.random.default_rng(1)
     gap = np.asarray(lbg == ubg)
@@ -470,7 +470,7 @@ def test_the_stagewise_nlp_is_the_same_problem(cfg) -> None:
             states.append(np.asarray(step(states[-1], inputs[k], params)).ravel())
         slacks = rng.uniform(0, 0.05, n)
         w_o = np.zeros(c.n_w)
-        w_o[c._ix], w_o[c._iu], w_o[c._ie] = np.array(states), inputs, slacks
+        w_o[c.ix], w_o[c.iu], w_o[c.ie] = np.array(states), inputs, slacks
         w_s = np.zeros(int(index["e"][-1]) + 1)
         w_s[index["x"]], w_s[index["u"]], w_s[index["e"]] = np.array(states), inputs, slacks
         w_s[index["c"]] = inputs  # the copy of u_k that stage k+1 carries

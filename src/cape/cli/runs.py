@@ -57,12 +57,7 @@ def cmd_build_solver(args: argparse.Namespace) -> None:
         _model_folders(args),
         args.raceline,
     )
-    controller = run.controller
-    libraries = [
-        str(solver.library)
-        for solver in (getattr(controller, "backend", None), getattr(controller, "rescue", None))
-        if solver is not None and solver.library is not None
-    ]
+    libraries = [str(library) for library in run.controller.libraries()]
     library = libraries[0] if libraries else None
     record = {
         "controller": args.controller,

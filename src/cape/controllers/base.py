@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
@@ -169,6 +170,11 @@ class Controller:
     def reset(self, z0: np.ndarray) -> None:
         self.u_prev = np.zeros(2)
         self.phase_s = {}  # seconds spent in each named part of the steps (timing.json)
+
+    def libraries(self) -> list[Path]:
+        """The compiled libraries it solves with (none for a controller that solves nothing);
+        ``cape build-solver`` records them."""
+        return []
 
     def clock(self, phase: str, since: float) -> float:
         """Add the time since ``since`` (``time.perf_counter()``) to ``phase``; return now."""

@@ -67,24 +67,25 @@ def stagewise_bounds(horizon: int, n_state: int, step_max: float) -> tuple[np.nd
     return np.array(lower), np.array(upper)
 
 
-def stagewise_nlp(controller: Any) -> dict[str, Any]:
-    """The NLP's expressions ({x, f, g, p}) from the controller's ``model_step`` and
-    ``stage_terms``, in the order of ``stagewise_index`` and ``stagewise_bounds``."""
-    n, n_state = controller.horizon, controller._ix.shape[1]
+def stagewise_nlp(ocp: Any) -> dict[str, Any]:
+    """The NLP's expressions ({x, f, g, p}) from the problem's ``model_step`` and
+    ``stage_terms`` (``cape.controllers.ocp.TrackingOCP``), in the order of
+    ``stagewise_index`` and ``stagewise_bounds``."""
+    n, n_state = ocp.horizon, ocp.ix.shape[1]
     index = stagewise_index(n, n_state)
     w = ca.SX.sym("w", int(index["e"][-1]) + 1)
-    p = ca.SX.sym("p", controller.n_param)
-    bound = p[controller.layout["bound"]]
+    p = ca.SX.sym("p", ocp.n_param)
+    bound = p[ocp.layout["bound"]]
     cost = 0
     track: list[Any] = [[] for _ in range(n + 1)]
     rates, gaps = [], []
     for k in range(n):
         x, u, e = w[index["x"][k]], w[index["u"][k]], w[int(index["e"][k])]
         x_next = w[index["x"][k + 1]]
-        before = p[controller.layout["u_prev"]] if k == 0 else w[index["c"][k - 1]]
-        stage_cost, rate, offset, _ = controller.stage_terms(x_next, u, before, e, p, k)
+        before = p[ocp.layout["u_prev"]] if k == 0 else w[index["c"][k - 1]]
+        stage_cost, rate, offset, _ = ocp.stage_terms(x_next, u, before, e, p, k)
         cost += stage_cost
-        gaps.append(ca.vertcat(x_next - controller.model_step(x, u, p), w[index["c"][k]] - u))
+        gaps.append(ca.vertcat(x_next - ocp.model_step(x, u, p), w[index["c"][k]] - u))
         rates.append(rate)
         track[k + 1] = [offset - e - bound, -offset - e - bound]
     g: list[Any] = []
