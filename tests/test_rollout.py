@@ -354,7 +354,7 @@ def test_plot_rollout(tmp_path: Path, track_dir: Path, config, setting) -> None:
 
 def test_the_solve_time_percentiles_are_numpys() -> None:
     """timing.json's solve-time percentiles, computed without NumPy's (which imports numpy.ma)."""
-    from cape.cli.runs import _percentile
+    from cape.closedloop.job import percentile as _percentile
 
     rng = np.random.default_rng(3)
     for n in (1, 2, 7, 377):

@@ -18,7 +18,7 @@ from cape.layout.runs import RunId
 from cape.study.aggregate import collect_runs, mean_ci, summarise
 from cape.study.glance import at_a_glance
 from cape.study.grid import canonical, study_runs
-from cape.study.scorecard import evaluate_claims
+from cape.study.scorecard import ClaimSet, Evidence, evaluate_claims
 from cape.study.tables import (
     best_controller,
     controller_parameters,
@@ -204,7 +204,7 @@ def test_the_scorecard_recomputes_the_claims_per_seed() -> None:
                     "mean_abs_ex_penalised": ex * (1 + 0.1 * seed), "mean_abs_ey_penalised": ex,
                     "mean_speed": 2.0 if model == "epm" else 1.0,
                 })  # fmt: skip
-    table, _ = evaluate_claims(pd.DataFrame(rows), pd.DataFrame(), {}, bicycle=None)  # replicate 0
+    table, _ = evaluate_claims(Evidence(pd.DataFrame(rows)), ClaimSet(bicycle=None))  # draw 0
     lap = table[table["claim"].str.startswith("adaptive")].set_index("comparison")
     # EPM − DDM is −2, −1.9, −1.6 s over the seeds (EPM 6, 7.1, 8.4 against DDM 8, 9, 10): mean
     # −1.833, sd 0.208, t(0.975, 2 df) = 4.3027, so −1.833 ± 0.517
@@ -228,7 +228,7 @@ def test_the_scorecard_recomputes_the_claims_per_seed() -> None:
     assert "a tie in every draw and seed" in fails.loc["EPM − DDM", "why"]
     # one claim, one label: the grid's 2 NMPCs × 1 η, whichever runs a model has so far
     incomplete = pd.DataFrame(rows).query("not (model == 'ddm' and controller == 'nmpc')")
-    labels = evaluate_claims(incomplete, pd.DataFrame(), {}, bicycle=None)[0]["claim"]
+    labels = evaluate_claims(Evidence(incomplete), ClaimSet(bicycle=None))[0]["claim"]
     assert set(labels[labels.str.startswith("NMPC-family")]) == {
         "NMPC-family failures of 2 runs: EPM fewest"
     }

@@ -16,7 +16,7 @@ from cape.models.health import outliers, training_checks
 from cape.study.calibration import bootstrap_two_level, exclusion_rate, nested, t_over_draws
 from cape.study.claims import ClosedLoopClaim, Context, Pair, controllers
 from cape.study.grid import canonical, study_runs
-from cape.study.scorecard import evaluate_claims, presented
+from cape.study.scorecard import ClaimSet, Evidence, evaluate_claims, presented
 from cape.study.verdicts import (
     CONTRADICTED,
     DRAWS,
@@ -152,6 +152,11 @@ DPM = [e - d for e, d in zip(EPM, [0.5, -1.5, -0.8], strict=True)]  # the draws 
 LAP = controllers(["anmpc"])
 
 
+def only(*claims: ClosedLoopClaim) -> ClaimSet:
+    """These closed-loop claims alone (no model, bicycle or ground-truth rows)."""
+    return ClaimSet(claims, model=[], bicycle=None, ground_truth=[])
+
+
 def _laps(draws: list[int]) -> pd.DataFrame:
     laps = {
         "epm": [[t + n for n in NOISE] for t in EPM],
@@ -176,15 +181,7 @@ def test_hand_made_runs_give_one_case_of_each_verdict_over_the_draws() -> None:
     pairs = [Pair("epm", "ddm", -1.0, "−1"), Pair("ddm", "epm", -1.0, "−1")]
     claim = _claim(*pairs, Pair("epm", "dpm", -1.0, "−1"))
     failed = Context(failed={1: {"dpm": "stalled"}})
-    table, effects = evaluate_claims(
-        _laps([0, 1, 2]),
-        pd.DataFrame(),
-        {},
-        context=failed,
-        claims=[claim],
-        model_claims=[],
-        bicycle=None,
-    )
+    table, effects = evaluate_claims(Evidence(_laps([0, 1, 2])), only(claim), context=failed)
     rows = table.set_index("comparison")
     assert rows.loc["EPM − DDM", "verdict"] == HOLDS and rows.loc["EPM − DDM", "why"] == ""
     assert rows.loc["EPM − DDM", "ci95_high"] < 0 and rows.loc["EPM − DDM", "draws"] == 3
@@ -222,9 +219,7 @@ def test_networks_that_agree_can_leave_the_class_undecided() -> None:
     ddm = [[1.5] * 5, [4.0] * 5, [1.2 + n / 2 for n in NOISE]]  # draw 2: −0.2 ± 0.08 s
     runs = _runs({"epm": [epm, epm, epm], "ddm": ddm})
     claim = _claim(Pair("epm", "ddm", -1.0, "−1"))
-    table, _ = evaluate_claims(
-        runs, pd.DataFrame(), {}, claims=[claim], model_claims=[], bicycle=None
-    )
+    table, _ = evaluate_claims(Evidence(runs), only(claim))
     row = table.iloc[0]
     assert [row[f"verdict rep{r}"] for r in range(3)] == [HOLDS] * 3
     assert row["verdict"] == INCONCLUSIVE and row["why"].startswith(
@@ -240,9 +235,7 @@ def test_one_draw_says_its_verdicts_are_this_draws() -> None:
 
     claim = _claim(Pair("epm", "ddm", -1.0, "−1"), Pair("epm", "dpm", -1.0, "−1"))
     runs = _laps([0])
-    table, effects = evaluate_claims(
-        runs, pd.DataFrame(), {}, claims=[claim], model_claims=[], bicycle=None
-    )
+    table, effects = evaluate_claims(Evidence(runs), only(claim))
     rows = table.set_index("comparison")
     assert rows.loc["EPM − DDM", "verdict"] == HOLDS  # −1 s in every seed: over the seeds
     assert rows.loc["EPM − DPM", "verdict"] == CONTRADICTED  # +0.5 s ± 0.16 over the seeds
@@ -303,14 +296,14 @@ def test_the_papers_study_runs_for_every_replicate_and_the_others_for_replicate_
 
 def test_a_row_of_replicate_0_alone_holds_everywhere_it_was_measured() -> None:
     from cape.study.scorecard import counts
+    from cape.study.table8 import ClaimRow, DrawResult, frame
 
-    table = pd.DataFrame(
-        {
-            "verdict rep0": [HOLDS, HOLDS, HOLDS],
-            "verdict rep1": ["not run", INCONCLUSIVE, HOLDS],
-            "verdict": [HOLDS, HOLDS, HOLDS],
-        }
-    )
+    def row(*draws: str) -> ClaimRow:
+        per = {r: DrawResult(verdict=v) for r, v in enumerate(draws) if v}
+        return ClaimRow("claim", "A − B", "−1", per_draw=per, verdict=HOLDS)
+
+    table = frame([row(HOLDS), row(HOLDS, INCONCLUSIVE), row(HOLDS, HOLDS)], [0, 1])
+    assert list(table["verdict rep1"]) == ["not run", INCONCLUSIVE, HOLDS]  # not run: rep0's
     assert counts(table)["hold for every network"] == 2  # the first and the last
 
 
@@ -322,7 +315,7 @@ def test_a_claim_the_study_cannot_evaluate_is_listed_with_why() -> None:
     from cape.study.scorecard import counts
 
     runs = _laps([0, 1]).assign(controller="pid")
-    table, _ = evaluate_claims(runs, pd.DataFrame(), {}, claims=CLOSED_LOOP, model_claims=[])
+    table, _ = evaluate_claims(Evidence(runs), ClaimSet(CLOSED_LOOP, model=[]))
     adaptive = table[table["claim"].str.startswith("adaptive NMPC")]
     assert len(adaptive) == 3 and set(adaptive["verdict"]) == {"not evaluated"}
     assert set(adaptive["why"]) == {"not evaluated: the paper's study has no runs of anmpc"}
@@ -345,10 +338,8 @@ def test_the_ground_truth_plants_rows_are_judged_the_same_way_beside_the_papers(
 
     car = _laps([0, 1, 2]).assign(study="truth", plant="truth")
     adaptive = [c for c in GROUND_TRUTH_CLAIMS if "adaptive" in c.name]
-    table, _ = evaluate_claims(
-        _laps([0, 1, 2]), pd.DataFrame(), {}, claims=[_claim(Pair("epm", "ddm", -1.0, "−1"))],
-        model_claims=[], bicycle=None, ground_truth=car, ground_truth_claims=adaptive,
-    )  # fmt: skip
+    claims = ClaimSet([_claim(Pair("epm", "ddm", -1.0, "−1"))], [], None, adaptive)
+    table, _ = evaluate_claims(Evidence(_laps([0, 1, 2]), ground_truth=car), claims)
     own = table[table["setting"] == GROUND_TRUTH].set_index("comparison")
     assert list(own.index) == ["EPM − DDM", "EPM − DPM", "DDM − DPM"]
     assert own.loc["EPM − DDM", "verdict"] == HOLDS and own.loc["EPM − DDM", "draws"] == 3
@@ -359,7 +350,7 @@ def test_the_ground_truth_plants_rows_are_judged_the_same_way_beside_the_papers(
     page = at_a_glance(table, _laps([0, 1, 2]))
     assert "| The paper's claims (learned plants; models; bicycle): 1 | 1 | 0 | 0 | 0 |" in page
     assert "| On the ground-truth plant (CAPE's own): 3 | 1 | 0 | 2 | 0 |" in page
-    alone, _ = evaluate_claims(_laps([0]), pd.DataFrame(), {}, model_claims=[], bicycle=None)
+    alone, _ = evaluate_claims(Evidence(_laps([0])), ClaimSet(model=[], bicycle=None))
     assert "setting" not in presented(alone)  # the paper's rows alone: no column to tell
 
 
@@ -370,22 +361,19 @@ def test_one_value_no_spread_or_a_missing_draw_decide_nothing() -> None:
     value. A row on fewer draws than the study says how many."""
     claim = _claim(Pair("epm", "ddm", -1.0, "−1"))
     one = _runs({"epm": [[7.0]], "ddm": [[8.0]]})  # one draw, one seed
-    table, _ = evaluate_claims(one, pd.DataFrame(), {}, claims=[claim], model_claims=[],
-                               bicycle=None)  # fmt: skip
+    table, _ = evaluate_claims(Evidence(one), only(claim))
     row = table.iloc[0]
     assert row["verdict"] == INCONCLUSIVE and row["why"].startswith("one value")
     assert np.isnan(row["p"])
     flat = _runs({"epm": [[7.0, 7.1], [7.2, 7.3]], "ddm": [[8.0, 8.1], [8.2, 8.3]]})  # −1 always
-    table, _ = evaluate_claims(flat, pd.DataFrame(), {}, claims=[claim], model_claims=[],
-                               bicycle=None)  # fmt: skip
+    table, _ = evaluate_claims(Evidence(flat), only(claim))
     row = table.iloc[0]
     assert row["verdict"] == INCONCLUSIVE and row["verdict FDR"] == INCONCLUSIVE
     assert row["why"].startswith("no spread over 2 draws: no verdict without a spread")
     assert verdict(interval({0: [2.0, 2.0, 2.0]}), +1) == INCONCLUSIVE  # a count that never moves
     three = _laps([0, 1, 2])
     lost = three[~((three["model"] == "ddm") & (three["replicate"] > 0))]  # DDM: draw 0 alone
-    table, _ = evaluate_claims(lost, pd.DataFrame(), {}, claims=[claim], model_claims=[],
-                               bicycle=None)  # fmt: skip
+    table, _ = evaluate_claims(Evidence(lost), only(claim))
     row = table.iloc[0]
     assert row["verdict"] == INCONCLUSIVE and row["draws"] == 1
     assert row["why"].startswith("one draw of 3 has a value")

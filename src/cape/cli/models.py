@@ -74,26 +74,15 @@ def _train_arguments(p: argparse.ArgumentParser) -> None:
 
 @command("train", "train a learned model on the ETHZ windows (SPEC §4)", _train_arguments)
 def cmd_train(args: argparse.Namespace) -> None:
-    import hashlib
-
     from cape.config import section
-    from cape.models.kernels import in_effect, pin_before_torch, pin_inductor
+    from cape.models.kernels import pin_before_torch, pin_inductor
 
     config = _config(args)
     kernels = section(config, "training").get("kernels")
     pin_before_torch(kernels)  # MKL's and ATen's code paths are read when PyTorch loads
-    import torch
-
     pin_inductor(kernels)
     from cape.models.checkpoint import save_model
-    from cape.models.trained import FORMAT_VERSION
-    from cape.models.training import (
-        TRAINING_STEP,
-        Checkpointing,
-        TrainingData,
-        train_model,
-        training_fingerprint,
-    )
+    from cape.models.training_run import run_training
 
     counts = {
         "--epochs": (args.epochs, 1),
@@ -106,82 +95,27 @@ def cmd_train(args: argparse.Namespace) -> None:
         if value is not None and not (math.isfinite(value) and value >= least):  # NaN too
             raise CapeError(f"{option} {value}: give a number of at least {least}")
     spec = _model_spec(config, args.model)
-    _check_model_folder(Path(args.out), args.model, args.replicate)  # before training
-    data_cfg, train_cfg = section(config, "data"), section(config, "training")
-    seed = int(args.seed if args.seed is not None else train_cfg["seed"])
-    data_path = Path(args.data)
-    dataset = _load_npz(str(data_path))
-    split = data_cfg["split"]
-    data = TrainingData.from_dataset(
-        dataset, int(spec["history"]), float(split["train_fraction"]), int(split["seed"])
-    )
-    threads = int(args.threads or train_cfg["threads"])
     out = Path(args.out)
-    data_sha256 = hashlib.sha256(data_path.read_bytes()).hexdigest()
-    fused = bool(train_cfg.get("fused_adam", True))
-    compile_cfg = train_cfg.get("compile") or {}
-    compiled = bool(compile_cfg.get("enabled", False))
-    fingerprint = training_fingerprint(
-        model=args.model,
-        spec={k: v for k, v in spec.items() if k not in ("label", "color")},
-        ts=float(data_cfg["ts"]),
-        seed=seed,
-        epochs=int(args.epochs if args.epochs is not None else spec["train"]["epochs"]),
-        split=split,
-        data_sha256=data_sha256,
-        threads=threads,
-        fused=fused,
-        compiled=compiled,
-        cpp_wrapper=compiled and bool(compile_cfg.get("cpp_wrapper", False)),
-        step=TRAINING_STEP,
-        torch=torch.__version__,
-        format=FORMAT_VERSION,
-        **({"kernels": in_effect(kernels)} if in_effect(kernels) else {}),
-    )
-    every = args.checkpoint_every
-    every = float(train_cfg.get("checkpoint_every", 60.0) if every is None else every)
-    checkpoint = Checkpointing(out / f"checkpoint-{fingerprint[:16]}.pt", fingerprint, every)
-    print(
-        f"training {args.model}: {len(data.train)} training / {len(data.val)} validation "
-        f"windows, seed {seed}"
-    )
-    result = train_model(
+    _check_model_folder(out, args.model, args.replicate)  # before training
+    run = run_training(
         args.model,
         spec,
-        data,
-        ts=float(data_cfg["ts"]),
-        seed=seed,
+        section(config, "data"),
+        section(config, "training"),
+        _load_npz(args.data),
+        Path(args.data),
+        out,
+        seed=args.seed,
         epochs=args.epochs,
-        threads=threads,
-        fused=fused,
-        compile_settings=train_cfg.get("compile"),
-        checkpoint=checkpoint,
+        threads=args.threads,
+        replicate=args.replicate,
+        checkpoint_every=args.checkpoint_every,
     )
+    result = run.result
     if result.resumed_from:
-        print(f"resumed from {checkpoint.path} after epoch {result.resumed_from}")
-    meta = {
-        "seed": seed,
-        "replicate": args.replicate,
-        "epochs": len(result.losses),
-        "best_epoch": result.best_epoch,
-        "best_val_loss": result.best_val_loss,
-        "wall_seconds": result.wall_seconds,
-        "threads": threads,
-        "compiled": compiled,
-        "training_step": TRAINING_STEP,
-        "split": split,
-        "scaler": data.scaler.to_dict(),
-        "data_file": str(data_path),
-        "data_sha256": data_sha256,
-        "torch_version": torch.__version__,
-        "kernels": in_effect(kernels),  # empty: the CPU's own code paths
-        "resumed_from_epoch": result.resumed_from,
-    }
-    rows = ["epoch,train_loss,val_loss"] + [
-        f"{r['epoch']},{r['train_loss']:.17g},{r['val_loss']:.17g}" for r in result.losses
-    ]
-    save_model(result.model, out, meta, {"loss.csv": ("\n".join(rows) + "\n").encode()})
-    checkpoint.path.unlink(missing_ok=True)  # done: the model replaces it
+        print(f"resumed from {run.checkpoint} after epoch {result.resumed_from}")
+    save_model(run.model, out, run.meta, {"loss.csv": run.losses_csv.encode()})
+    run.checkpoint.unlink(missing_ok=True)  # done: the model replaces it
     print(
         f"{args.model}: best validation MSE {result.best_val_loss:.4e} "
         f"at epoch {result.best_epoch} "

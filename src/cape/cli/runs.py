@@ -8,7 +8,6 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
-from typing import Any
 
 from cape.cli.common import (
     STARTED,
@@ -19,7 +18,6 @@ from cape.cli.common import (
     _model_folders,
     command,
 )
-from cape.errors import CapeError
 from cape.layout.names import TRUTH
 
 PLANT_KINDS = "dpm|ddm|epm (learned), dpm-fixed|ddm-fixed|epm-fixed, or truth"
@@ -100,105 +98,36 @@ def _rollout_arguments(p: argparse.ArgumentParser) -> None:
     _add_config_args(p)
 
 
-def _percentile(ordered: Any, q: float) -> float:
-    """``np.percentile(values, q)`` (linear interpolation) of already sorted values, without
-    NumPy's, whose first call imports ``numpy.ma`` in every job for four numbers."""
-    position = q / 100 * (len(ordered) - 1)
-    low = int(position)
-    high = min(low + 1, len(ordered) - 1)
-    return float(ordered[low] + (ordered[high] - ordered[low]) * (position - low))
-
-
 @command("rollout", "one closed-loop lap: plant, controller, η, seed (SPEC §5)", _rollout_arguments)
 def cmd_rollout(args: argparse.Namespace) -> None:
-    import numpy as np
-
-    from cape.closedloop.provenance import run_models
-    from cape.closedloop.setup import build_run
-    from cape.config import check_eta, section
-    from cape.controllers import controller_class
+    from cape.closedloop.job import check_run, run_job
     from cape.io import atomic_folder, check_replaceable
-    from cape.layout.names import check_name
     from cape.layout.record import write_run_files, write_timing
-    from cape.layout.runs import RUN_FILES
+    from cape.layout.runs import RUN_FILES, RunId
 
     imported = time.perf_counter()
     config = _config(args)
-    eta = check_eta(args.eta, "--eta")
-    if args.seed < 0:
-        raise CapeError(f"--seed {args.seed}: a seed is a non-negative integer")
-    if args.replicate < 0:
-        raise CapeError(f"--replicate {args.replicate}: a replicate is a non-negative integer")
-    check_name(args.study, "--study")
+    run = RunId(args.study, args.plant, args.internal or args.plant, args.controller, args.eta,
+                args.seed, args.replicate)  # fmt: skip
+    check_run(run)
     out = Path(args.out)
     check_replaceable(out, RUN_FILES, RUN_WHAT)  # before the lap, not after it
-    folders = _model_folders(args)
-    entries = section(config, "controllers")  # an unknown name: build_run says so
-    needs = (
-        args.controller in entries
-        and controller_class(args.controller, entries[args.controller]).needs_internal_model
-    )
-    internal = (args.internal or args.plant) if needs else None
-    used = run_models(config, args.plant, internal, folders, args.replicate)
-    configured = time.perf_counter()
-    run = build_run(
+    record = run_job(
         config,
-        args.plant,
-        args.controller,
-        eta,
-        args.seed,
+        run,
         args.internal,
-        folders,
+        _model_folders(args),
         args.raceline,
         validate=args.config_json is None,
         envelope_data=args.training_data,
+        started=STARTED,
+        imported=imported,
     )
-    built = time.perf_counter()
-    result = run()
-    lapped = time.perf_counter()
-    metrics = {
-        "study": args.study,
-        "plant": args.plant,
-        "controller": args.controller,
-        "internal": run.internal,
-        "eta": args.eta,
-        "seed": args.seed,
-        "replicate": args.replicate,
-        "models": used,  # the trained networks it was computed with (cape.closedloop.provenance)
-        **result.metrics,
-    }
-    ms = np.sort(result.solve_ms)
-    timing: dict[str, Any] = {
-        f"solve_ms_{name}": _percentile(ms, q) if ms.size else None
-        for name, q in (("median", 50), ("p90", 90), ("p99", 99), ("max", 100))
-    }
     # the run's three files appear together or not at all (one folder rename)
     with atomic_folder(out, RUN_FILES, RUN_WHAT) as folder:
-        series_sha256 = write_run_files(folder, metrics, result.series)
-        # the job's wall time by phase (s): start-up (the command's modules and arguments, from
-        # the first of cape.cli's imports), the run's imports, reading the config, building the
-        # run (models, solver), the lap (and in it the controller's and the plant's shares),
-        # writing; what a process costs before and after these is what
-        # benchmarks/rollout_job.py measures from outside
-        lap = lapped - built
-        timing["job_s"] = {
-            "startup": round(imported - STARTED, 4),
-            "config": round(configured - imported, 4),
-            "build": round(built - configured, 4),
-            "lap": round(lap, 4),
-            "controller": round(float(np.sum(ms)) / 1e3, 4),
-            "plant": round(result.plant_s, 4),
-            "steps": int(metrics["steps"]),
-            "write": round(time.perf_counter() - lapped, 4),
-        }
-        # the controller's steps by part (an NMPC's: benchmarks/draw_cost.py), and how many of
-        # the SQP's failures its IPOPT rescue solved
-        timing["controller_s"] = {k: round(v, 4) for k, v in sorted(result.controller_s.items())}
-        timing["rescues"] = {
-            "tried": int(metrics.get("rescues") or 0),
-            "succeeded": result.rescues_succeeded,
-        }
-        write_timing(folder, timing, series_sha256)
+        series_sha256 = write_run_files(folder, record.metrics, record.series)
+        write_timing(folder, record.finish_timing(), series_sha256)
+    metrics = record.metrics
     status = "lap" if metrics["success"] else f"failed ({metrics['failure']})"
     run_name = f"{args.plant}/{args.controller} η={args.eta} seed={args.seed}"
     print(f"{run_name}: {status}, lap time {metrics['lap_time']}")

@@ -40,8 +40,6 @@ NETWORK_FORMAT = 1
 """Version of ``network.npz``'s layout; a file of another version is rejected with the fix."""
 
 
-
-
 def gru_stack(x: ca.SX, w_ih0: Array, w_ih: Array, w_hh: Array, b_ih: Array, b_hh: Array) -> ca.SX:
     """PyTorch's multi-layer GRU (zero initial state) on one sequence ``x`` (T × in, CasADi),
     the trained weights as constants: the last layer's outputs (T × h).

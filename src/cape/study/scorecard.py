@@ -9,25 +9,21 @@ draws whose trainings did not fail, and for a row left undecided the draws per m
 decide it (``draws needed``). With one draw (the default target) the verdict is about that
 draw's networks, and the table says so (``presented``).
 
-Internal columns: ``setting``, ``claim``, ``comparison``, ``paper``, ``ours``, ``ci95_low``,
-``ci95_high``, ``estimate``, ``draws``, ``p``, ``effect rep<r>``, ``verdict rep<r>``,
-``verdict`` (over the draws that trained: the headline), ``verdict FDR`` (the same, adjusted
-for the false-discovery rate over the setting's rows), ``verdict all draws`` (failed
-trainings included), ``draws needed``, ``why``. A row from one value or values that do not
-vary is inconclusive unless it is exact (cape.study.verdicts).
+The rows and their columns are ``cape.study.table8``'s. A row from one value or values that do
+not vary is inconclusive unless it is exact (cape.study.verdicts).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from cape.layout.names import PlantName
+from cape.layout.names import PlantName, replicate_name
 from cape.study.claims import (
     BICYCLE,
     CLOSED_LOOP,
@@ -41,6 +37,15 @@ from cape.study.claims import (
     Context,
     ModelClaim,
     Pair,
+)
+from cape.study.table8 import (
+    NOT_RUN,
+    ClaimRow,
+    DrawResult,
+    draw_verdicts,
+    draws_of,
+    frame,
+    verdict_column,
 )
 from cape.study.verdicts import (
     CONTRADICTED,
@@ -57,13 +62,20 @@ from cape.study.verdicts import (
     verdict,
 )
 
-__all__ = ["Context", "Settings", "counts", "evaluate_claims", "one_draw", "presented"]
+__all__ = [
+    "ClaimSet",
+    "Context",
+    "Evidence",
+    "Settings",
+    "counts",
+    "draws_of",
+    "evaluate_claims",
+    "one_draw",
+    "presented",
+]
 
 LEVEL = 0.95
 """The verdicts' interval (SPEC §10: 95 %)."""
-
-NOT_RUN = "not run"
-"""A draw's verdict on a row measured in replicate 0 only (the bicycle study)."""
 
 NOT_EVALUATED = "not evaluated"
 """The verdict of a row the study cannot evaluate (no runs of the claim's controller, a model
@@ -87,12 +99,38 @@ class Settings:
         return cls(float(section.get("power", 0.8)), int(section.get("most_draws", 100)))
 
 
+@dataclass(frozen=True)
+class ClaimSet:
+    """The claims table 8 evaluates: closed-loop claims on the paper's study, model claims on
+    tables 1 and 4, the bicycle claim (None: none), and CAPE's own on the ground-truth plant."""
+
+    closed_loop: Sequence[ClosedLoopClaim] = CLOSED_LOOP
+    model: Sequence[ModelClaim] = MODEL
+    bicycle: BicycleClaim | None = BICYCLE
+    ground_truth: Sequence[ClosedLoopClaim] = GROUND_TRUTH_CLAIMS
+
+
+@dataclass
+class Evidence:
+    """What table 8 is computed from: the paper's study's ``runs`` (every draw and seed), the
+    ground-truth study's (None: no such rows), the best bicycle controller per model, the
+    controllers' labels, tables 1 and 4 per draw, and ``absent``: why there is no run, if so."""
+
+    runs: pd.DataFrame
+    best_bicycle: pd.DataFrame = field(default_factory=pd.DataFrame)
+    labels: Mapping[str, str] = field(default_factory=dict)
+    complexity: Mapping[int, pd.DataFrame] = field(default_factory=dict)
+    openloop: Mapping[int, pd.DataFrame] = field(default_factory=dict)
+    ground_truth: pd.DataFrame | None = None
+    absent: str = ""
+
+
 @dataclass
 class _Evaluation:
     replicates: Sequence[int]
     context: Context
     settings: Settings
-    rows: list[dict]
+    rows: list[ClaimRow]
     spans: list[dict]
 
 
@@ -156,79 +194,73 @@ def _failed_note(context: Context, pair: Pair) -> str:
     )
 
 
-def _verdicts(
-    ev: _Evaluation, effects: Effects, pair: Pair
-) -> tuple[dict[str, Any], dict[str, Interval]]:
-    """The row's interval and verdicts: the headline over the draws that trained (or this
+def _verdicts(ev: _Evaluation, effects: Effects, pair: Pair, row: ClaimRow) -> dict[str, Interval]:
+    """Fill ``row``'s interval and verdicts: the headline over the draws that trained (or this
     draw's seeds), per draw over its seeds, over every draw (failed trainings included), and
-    the draws needed when undecided."""
+    the draws needed when undecided; returns the intervals by scope (figure 13)."""
     sign = float(np.sign(pair.paper_effect))
     kept = {r: effects[r] for r in _trained(ev.context, pair, ev.replicates) if r in effects}
     study = len(ev.replicates)
     headline = class_interval(kept, study, LEVEL)
     every = class_interval(effects, study, LEVEL)
     spans = {"pooled": headline}
-    row: dict[str, Any] = {
-        "ci95_low": headline.low,
-        "ci95_high": headline.high,
-        "estimate": headline.estimate,
-        "draws": headline.replicates,
-        "p": headline.p,
-        "_draws": sorted(r for r in kept if draw_effects({r: kept[r]})),
-        "_evidence": headline.why,
-    }
+    row.ci95_low, row.ci95_high, row.estimate = headline.low, headline.high, headline.estimate
+    row.draws, row.p = headline.replicates, headline.p
+    row.used = sorted(r for r in kept if draw_effects({r: kept[r]}))
+    row.evidence = headline.why
     means = draw_effects(effects)
     for r in ev.replicates:
-        row[f"effect rep{r}"] = means.get(r, math.nan)
         span = interval({r: effects[r]}, LEVEL) if r in effects else None
-        row[f"verdict rep{r}"] = INCONCLUSIVE if span is None else verdict(span, sign)
+        own = INCONCLUSIVE if span is None else verdict(span, sign)
+        row.per_draw[r] = DrawResult(means.get(r, math.nan), own)
         if span is not None:
-            spans[f"rep{r}"] = span
-    row["verdict"] = verdict(headline, sign)
-    row["verdict all draws"] = verdict(every, sign)
-    undecided = row["verdict"] == INCONCLUSIVE
+            spans[replicate_name(r)] = span
+    row.verdict = verdict(headline, sign)
+    row.verdict_all = verdict(every, sign)
     settings = ev.settings
-    row["draws needed"] = (
-        draws_needed(headline, LEVEL, settings.power, settings.most_draws) if undecided else ""
+    row.draws_needed = (
+        draws_needed(headline, LEVEL, settings.power, settings.most_draws)
+        if row.verdict == INCONCLUSIVE
+        else ""
     )
-    return row, spans
+    return spans
 
 
-def _why(ev: _Evaluation, row: Mapping[str, Any], pair: Pair, causes: Sequence[str]) -> str:
+def _why(ev: _Evaluation, row: ClaimRow, pair: Pair, causes: Sequence[str]) -> str:
     """The measured cause of a row that does not hold: too little evidence, how the draws'
     verdicts stand, the claim's own causes and the failed trainings involved; and, for any
     row, how many of the study's draws it rests on when fewer than all."""
-    used = row.get("_draws", [])
+    used = row.used
     fewer = (
         f"rests on {len(used)} of the study's {len(ev.replicates)} draws"
         if len(ev.replicates) > 1 and 0 < len(used) < len(ev.replicates)
         else ""
     )
-    if row["verdict"] == HOLDS:
+    if row.verdict == HOLDS:
         return fewer
     notes = [c for c in (fewer, *causes, _failed_note(ev.context, pair)) if c]
     counted = [r for r in ev.replicates if r in used] or list(ev.replicates)  # the interval's
-    per = [row.get(f"verdict rep{r}", INCONCLUSIVE) for r in counted]
-    evidence = row.get("_evidence", "")
-    if row["verdict"] == INCONCLUSIVE and evidence:
+    per = [row.per_draw[r].verdict if r in row.per_draw else INCONCLUSIVE for r in counted]
+    evidence = row.evidence
+    if row.verdict == INCONCLUSIVE and evidence:
         if evidence == "no values":
             cause = "no draw that trained has a value"
-        elif row["ci95_low"] == row["ci95_high"] == 0:
+        elif row.ci95_low == row.ci95_high == 0:
             cause = f"{evidence}: a tie in every draw and seed"
         else:
             cause = f"{evidence}: no verdict without a spread"
-    elif row["verdict"] == INCONCLUSIVE and len(ev.replicates) > 1:
+    elif row.verdict == INCONCLUSIVE and len(ev.replicates) > 1:
         if len(set(per)) > 1:
-            said = ", ".join(f"rep{r} {v}" for r, v in zip(counted, per, strict=True))
+            said = ", ".join(f"{replicate_name(r)} {v}" for r, v in zip(counted, per, strict=True))
             cause = f"the training draws disagree ({said})"
         elif per[0] != INCONCLUSIVE:
             cause = (
-                f"every draw's own verdict is {per[0]}, but {row['draws']} draws this far "
+                f"every draw's own verdict is {per[0]}, but {row.draws} draws this far "
                 "apart do not decide the class"
             )
         else:
             cause = "within the spread of the seeds in every draw"
-    elif row["verdict"] == INCONCLUSIVE:
+    elif row.verdict == INCONCLUSIVE:
         cause = "within the spread of the seeds"
     else:
         cause = "not explained"
@@ -251,21 +283,17 @@ def _not_evaluated(
     setting: str = PAPER_SETTING,
 ) -> None:
     """A row the study cannot evaluate: listed, with why, never dropped."""
-    verdicts = {f"verdict rep{r}": NOT_EVALUATED for r in ev.replicates}
     ev.rows.append(
-        {
-            "setting": setting,
-            "claim": claim,
-            "comparison": comparison,
-            "paper": paper,
-            "ours": "–",
-            **verdicts,
-            "verdict": NOT_EVALUATED,
-            "verdict FDR": NOT_EVALUATED,
-            "verdict all draws": NOT_EVALUATED,
-            "draws needed": "",
-            "why": f"{NOT_EVALUATED}: {why}",
-        }
+        ClaimRow(
+            claim,
+            comparison,
+            paper,
+            setting=setting,
+            per_draw={r: DrawResult(verdict=NOT_EVALUATED) for r in ev.replicates},
+            verdict=NOT_EVALUATED,
+            verdict_all=NOT_EVALUATED,
+            why=f"{NOT_EVALUATED}: {why}",
+        )
     )
 
 
@@ -288,24 +316,17 @@ def _closed_loop(ev: _Evaluation, runs: pd.DataFrame, claim: ClosedLoopClaim) ->
                 why = f"{study} has no {claim.select.what}{whose}"
             _not_evaluated(ev, name, comparison, pair.paper_text, why, claim.setting)
             continue
-        verdicts, spans = _verdicts(ev, effects, pair)
-        used = verdicts["_draws"]
+        row = ClaimRow(name, comparison, pair.paper_text, setting=claim.setting)
+        spans = _verdicts(ev, effects, pair, row)
+        used = row.used
         values = _both(pair, _mean_over(per, pair.a, used), _mean_over(per, pair.b, used))
-        ours = f"{verdicts['estimate']:.3g}{claim.unit} ({values})" if used else "–"
-        row = {
-            "setting": claim.setting,
-            "claim": name,
-            "comparison": comparison,
-            "paper": pair.paper_text,
-            "ours": ours,
-            **verdicts,
-        }
-        row["why"] = _why(ev, row, pair, [cause(ev.context, pair) for cause in claim.causes])
+        row.ours = f"{row.estimate:.3g}{claim.unit} ({values})" if used else "–"
+        row.why = _why(ev, row, pair, [cause(ev.context, pair) for cause in claim.causes])
         ev.rows.append(row)
         ev.spans += [
             {
                 "claim": name,
-                "comparison": row["comparison"],
+                "comparison": row.comparison,
                 "scope": scope,
                 "estimate": s.estimate,
                 "low": s.low,
@@ -336,35 +357,23 @@ def _model(ev: _Evaluation, claim: ModelClaim, tables: Mapping[int, pd.DataFrame
             _not_evaluated(ev, claim.name, comparison, pair.paper_text, why)
             continue
         effects = {r: [float(p[pair.a] - p[pair.b])] for r, p in per.items()}
+        row = ClaimRow(claim.name, comparison, pair.paper_text)
         if claim.exact:
             value = effects[min(effects)][0]
             v = exact_verdict(value, float(np.sign(pair.paper_effect)))
-            verdicts = {
-                "estimate": value,
-                "ci95_low": value,
-                "ci95_high": value,
-                "draws": len(per),
-                "_draws": sorted(per),
-                **{f"effect rep{r}": effects[r][0] for r in ev.replicates if r in effects},
-                **{f"verdict rep{r}": v for r in ev.replicates},
-                "verdict": v,
-                "verdict all draws": v,
-                "draws needed": "",
-                "exact": True,
+            row.estimate = row.ci95_low = row.ci95_high = value
+            row.draws, row.used, row.exact = len(per), sorted(per), True
+            row.per_draw = {
+                r: DrawResult(effects[r][0] if r in effects else math.nan, v) for r in ev.replicates
             }
+            row.verdict = row.verdict_all = v
         else:
-            verdicts, _ = _verdicts(ev, effects, pair)
-        used = verdicts["_draws"]
+            _verdicts(ev, effects, pair, row)
+        used = row.used
         mean_a = float(np.mean([p[pair.a] for r, p in per.items() if r in used] or [math.nan]))
         mean_b = float(np.mean([p[pair.b] for r, p in per.items() if r in used] or [math.nan]))
-        row = {
-            "claim": claim.name,
-            "comparison": comparison,
-            "paper": pair.paper_text,
-            "ours": f"{verdicts['estimate']:.3g} ({_both(pair, mean_a, mean_b)})" if used else "–",
-            **verdicts,
-        }
-        row["why"] = _why(ev, row, pair, [cause(ev.context, pair) for cause in claim.causes])
+        row.ours = f"{row.estimate:.3g} ({_both(pair, mean_a, mean_b)})" if used else "–"
+        row.why = _why(ev, row, pair, [cause(ev.context, pair) for cause in claim.causes])
         ev.rows.append(row)
 
 
@@ -384,50 +393,35 @@ def _bicycle(
         r = match.iloc[0]
         same = inverse.get(r["best controller"], r["best controller"]) == anchor["controller"]
         v = HOLDS if same else CONTRADICTED
+        ours = f"{r['best controller']}, η ≤ {r['max η completed']:g}, {r['lap time (s)']:.2f} s"
         ev.rows.append(
-            {
-                "claim": claim.name,
-                "comparison": f"{model.upper()} (fixed)",
-                "paper": paper,
-                "ours": (
-                    f"{r['best controller']}, η ≤ {r['max η completed']:g}, "
-                    f"{r['lap time (s)']:.2f} s"
-                ),
-                "draws": 1,
-                "verdict rep0": v,
-                "verdict": v,
-                "verdict all draws": v,
-                "draws needed": "",
-                "exact": True,
-                "why": "" if same else "not explained",
-            }
+            ClaimRow(
+                claim.name,
+                f"{model.upper()} (fixed)",
+                paper,
+                ours,
+                draws=1,
+                per_draw={0: DrawResult(verdict=v)},  # the bicycle study is replicate 0's
+                verdict=v,
+                verdict_all=v,
+                exact=True,
+                why="" if same else "not explained",
+            )
         )
 
 
 def evaluate_claims(
-    runs: pd.DataFrame,
-    best_bicycle: pd.DataFrame,
-    labels: Mapping[str, str],
-    complexity: Mapping[int, pd.DataFrame] | pd.DataFrame | None = None,
-    openloop: Mapping[int, pd.DataFrame] | pd.DataFrame | None = None,
+    evidence: Evidence,
+    claims: ClaimSet = ClaimSet(),
     context: Context | None = None,
     settings: Settings | None = None,
-    claims: Sequence[ClosedLoopClaim] = CLOSED_LOOP,
-    model_claims: Sequence[ModelClaim] = MODEL,
-    bicycle: BicycleClaim | None = BICYCLE,
-    absent: str = "",
-    ground_truth: pd.DataFrame | None = None,
-    ground_truth_claims: Sequence[ClosedLoopClaim] = GROUND_TRUTH_CLAIMS,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Table 8 (internal columns) for the paper's ``runs`` (every draw and seed; a table 1 or
-    4 given as one frame is replicate 0's), and the closed-loop rows' intervals per draw and
-    pooled (figure 13: claim, comparison, scope, estimate, low, high, paper). With no run, each
-    closed-loop claim is a ``not evaluated`` row giving ``absent`` (why there is none) as its
-    reason. ``ground_truth``: the ground-truth study's runs (every draw and seed), on which
-    ``ground_truth_claims`` are evaluated the same way (CAPE's own rows, setting
-    "ground-truth plant")."""
-    complexity = {0: complexity} if isinstance(complexity, pd.DataFrame) else dict(complexity or {})
-    openloop = {0: openloop} if isinstance(openloop, pd.DataFrame) else dict(openloop or {})
+    """Table 8 (``cape.study.table8``) of ``claims`` on ``evidence``, and the closed-loop
+    rows' intervals per draw and pooled (figure 13: claim, comparison, scope, estimate, low,
+    high, paper). With no run, each closed-loop claim is a ``not evaluated`` row giving
+    ``evidence.absent`` (why there is none) as its reason."""
+    runs, ground_truth = evidence.runs, evidence.ground_truth
+    complexity, openloop = dict(evidence.complexity), dict(evidence.openloop)
     context = context or Context(openloop=openloop)
     if openloop and not context.openloop:
         context = Context(context.ideal_lap_time, context.failed, openloop)
@@ -438,16 +432,16 @@ def evaluate_claims(
         {int(r) for r in runs["replicate"].unique()} | set(complexity) | set(openloop)
     )
     ev = _Evaluation(replicates, context, settings or Settings(), [], [])
-    for claim in claims:
+    for claim in claims.closed_loop:
         if runs.empty:
-            why = absent or "the paper's study has no runs"
+            why = evidence.absent or "the paper's study has no runs"
             for pair in claim.pairs:
                 comparison = f"{pair.a.upper()}{claim.effect.joiner}{pair.b.upper()}"
                 _not_evaluated(ev, claim.name.format(cells=0), comparison, pair.paper_text, why)
         else:
             _closed_loop(ev, runs, claim)
     if ground_truth is not None:
-        for claim in ground_truth_claims:
+        for claim in claims.ground_truth:
             if ground_truth.empty:
                 for pair in claim.pairs:
                     comparison = f"{pair.a.upper()}{claim.effect.joiner}{pair.b.upper()}"
@@ -456,41 +450,13 @@ def evaluate_claims(
                     _not_evaluated(ev, name, comparison, pair.paper_text, why, claim.setting)
             else:
                 _closed_loop(ev, ground_truth, claim)
-    if bicycle is not None:
-        _bicycle(ev, bicycle, best_bicycle, labels)
-    for claim in model_claims:
-        _model(ev, claim, complexity if claim.table == "complexity" else openloop)
-    table = pd.DataFrame(ev.rows)
-    order = [
-        "setting",
-        "claim",
-        "comparison",
-        "paper",
-        "ours",
-        "ci95_low",
-        "ci95_high",
-        "estimate",
-        "draws",
-        "p",
-        *(f"effect rep{r}" for r in replicates),
-        *(f"verdict rep{r}" for r in replicates),
-        "verdict",
-        "verdict FDR",
-        "verdict all draws",
-        "draws needed",
-        "why",
-    ]
-    numeric = ("ci95_low", "ci95_high", "estimate", "draws", "p")
-    for column in order:
-        if column not in table:
-            table[column] = math.nan if column in numeric or column.startswith("effect") else ""
-    table["setting"] = table["setting"].replace("", PAPER_SETTING).fillna(PAPER_SETTING)
+    if claims.bicycle is not None:
+        _bicycle(ev, claims.bicycle, evidence.best_bicycle, evidence.labels)
+    for model_claim in claims.model:
+        tables = complexity if model_claim.table == "complexity" else openloop
+        _model(ev, model_claim, tables)
+    table = frame(ev.rows, replicates)
     table["verdict FDR"] = _adjusted(table)
-    table = table[order]
-    verdict_columns = [f"verdict rep{r}" for r in replicates]
-    # a row about replicate 0 alone (the bicycle study's) has no verdict in the other draws (a
-    # word no CSV reader takes for a missing value, as it would "n/a")
-    table[verdict_columns] = table[verdict_columns].fillna(NOT_RUN)
     columns = ["claim", "comparison", "scope", "estimate", "low", "high", "paper"]
     return table, pd.DataFrame(ev.spans, columns=columns)
 
@@ -503,13 +469,6 @@ def _adjusted(table: pd.DataFrame) -> pd.Series:
         adjusted = fdr_verdicts(rows["p"].astype(float).tolist(), rows["verdict"].tolist())
         out.loc[rows.index] = adjusted
     return out
-
-
-def draws_of(table: pd.DataFrame) -> list[int]:
-    """The training draws a table 8 was evaluated over (from its ``verdict rep<r>`` columns)."""
-    return [
-        int(c.removeprefix("verdict rep")) for c in table.columns if c.startswith("verdict rep")
-    ]
 
 
 def one_draw(table: pd.DataFrame) -> bool:
@@ -535,7 +494,7 @@ def presented(table: pd.DataFrame) -> pd.DataFrame:
                 "verdict FDR": "verdict FDR (this training draw)",
             }
         )
-    renamed = {f"verdict rep{r}": f"verdict rep{r} (this network)" for r in draws}
+    renamed = {verdict_column(r): f"{verdict_column(r)} (this network)" for r in draws}
     renamed |= {
         "verdict": "verdict (draws that trained)",
         "verdict FDR": "verdict FDR (draws that trained)",
@@ -546,8 +505,7 @@ def presented(table: pd.DataFrame) -> pd.DataFrame:
 
 def holds_for_every_network(table: pd.DataFrame) -> pd.Series:
     """Rows whose verdict holds for every trained network they were measured on."""
-    reps = [c for c in table.columns if c.startswith("verdict rep")]
-    verdicts = table[reps]
+    verdicts = draw_verdicts(table)
     return verdicts.isin([HOLDS, NOT_RUN]).all(axis=1) & verdicts.eq(HOLDS).any(axis=1)
 
 
@@ -555,12 +513,13 @@ def counts(table: pd.DataFrame) -> dict[str, int]:
     """How many rows hold, are contradicted, are inconclusive (over the draws that trained, or
     for this one draw), the same after the false-discovery-rate adjustment, and how many hold
     for every network or are contradicted for any."""
-    reps = [c for c in table.columns if c.startswith("verdict rep")]
+    reps = draws_of(table)
     kinds = (*VERDICTS, NOT_EVALUATED)
     out = {"rows": len(table), **{v: int(table["verdict"].eq(v).sum()) for v in kinds}}
     if "verdict FDR" in table:
         out |= {f"FDR {v}": int(table["verdict FDR"].eq(v).sum()) for v in VERDICTS}
     if len(reps) > 1:
         out["hold for every network"] = int(holds_for_every_network(table).sum())
-        out["contradicted for any network"] = int(table[reps].eq(CONTRADICTED).any(axis=1).sum())
+        contradicted = draw_verdicts(table).eq(CONTRADICTED).any(axis=1)
+        out["contradicted for any network"] = int(contradicted.sum())
     return out
