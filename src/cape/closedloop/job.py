@@ -116,31 +116,37 @@ def run_job(
         "models": used,  # the trained networks it was computed with (cape.closedloop.provenance)
         **result.metrics,
     }
+    phases = {
+        "startup": imported - started,
+        "config": configured - imported,
+        "build": built - configured,
+        "lap": lapped - built,
+    }
+    return RunRecord(metrics, job_timing(result, metrics, phases), result.series, lapped)
+
+
+def job_timing(result: Any, metrics: Mapping[str, Any], phases: Mapping[str, float]) -> dict:
+    """``timing.json`` of a run but its write phase: the solve times' percentiles (ms), the
+    job's wall time by phase (s): start-up (the command's modules and arguments, from the first
+    of cape.cli's imports), reading the config, building the run (models, solver), the lap (and
+    in it the controller's and the plant's shares); the controller's steps by part (an NMPC's:
+    benchmarks/draw_cost.py) and how many of the SQP's failures its rescue solved. What a
+    process costs before and after these is what benchmarks/rollout_job.py measures."""
     ms = np.sort(result.solve_ms)
     timing: dict[str, Any] = {
         f"solve_ms_{name}": percentile(ms, q) if ms.size else None
         for name, q in (("median", 50), ("p90", 90), ("p99", 99), ("max", 100))
     }
-    # the job's wall time by phase (s): start-up (the command's modules and arguments, from the
-    # first of cape.cli's imports), the run's imports, reading the config, building the run
-    # (models, solver), the lap (and in it the controller's and the plant's shares), writing
-    # (``RunRecord.finish_timing``); what a process costs before and after these is what
-    # benchmarks/rollout_job.py measures from outside
     timing["job_s"] = {
-        "startup": round(imported - started, 4),
-        "config": round(configured - imported, 4),
-        "build": round(built - configured, 4),
-        "lap": round(lapped - built, 4),
+        **{name: round(seconds, 4) for name, seconds in phases.items()},
         "controller": round(float(np.sum(ms)) / 1e3, 4),
         "plant": round(result.plant_s, 4),
         "steps": int(metrics["steps"]),
-        "write": 0.0,
+        "write": 0.0,  # RunRecord.finish_timing
     }
-    # the controller's steps by part (an NMPC's: benchmarks/draw_cost.py), and how many of the
-    # SQP's failures its IPOPT rescue solved
     timing["controller_s"] = {k: round(v, 4) for k, v in sorted(result.controller_s.items())}
     timing["rescues"] = {
         "tried": int(metrics.get("rescues") or 0),
         "succeeded": result.rescues_succeeded,
     }
-    return RunRecord(metrics, timing, result.series, lapped)
+    return timing

@@ -72,25 +72,10 @@ def run_training(
     threads = int(threads or training_section["threads"])
     data_sha256 = hashlib.sha256(data_path.read_bytes()).hexdigest()
     fused = bool(training_section.get("fused_adam", True))
-    compile_cfg = training_section.get("compile") or {}
-    compiled = bool(compile_cfg.get("enabled", False))
+    compiled = bool((training_section.get("compile") or {}).get("enabled", False))
     kernels = in_effect(training_section.get("kernels"))
-    fingerprint = training_fingerprint(
-        model=name,
-        spec={k: v for k, v in spec.items() if k not in PRESENTATION_KEYS},
-        ts=float(data_section["ts"]),
-        seed=seed,
-        epochs=int(epochs if epochs is not None else spec["train"]["epochs"]),
-        split=split,
-        data_sha256=data_sha256,
-        threads=threads,
-        fused=fused,
-        compiled=compiled,
-        cpp_wrapper=compiled and bool(compile_cfg.get("cpp_wrapper", False)),
-        step=TRAINING_STEP,
-        torch=torch.__version__,
-        format=FORMAT_VERSION,
-        **({"kernels": kernels} if kernels else {}),
+    fingerprint = _fingerprint(
+        name, spec, data_section, training_section, seed, epochs, threads, data_sha256
     )
     every = training_section.get("checkpoint_every", 60.0)
     every = float(every if checkpoint_every is None else checkpoint_every)
@@ -111,13 +96,10 @@ def run_training(
         compile_settings=training_section.get("compile"),
         checkpoint=checkpoint,
     )
-    meta = {
+    meta = {  # in this order in meta.json
         "seed": seed,
         "replicate": replicate,
-        "epochs": len(result.losses),
-        "best_epoch": result.best_epoch,
-        "best_val_loss": result.best_val_loss,
-        "wall_seconds": result.wall_seconds,
+        **_outcome(result),
         "threads": threads,
         "compiled": compiled,
         "training_step": TRAINING_STEP,
@@ -138,4 +120,48 @@ def run_training(
         "\n".join(rows) + "\n",
         result,
         checkpoint.path,
+    )
+
+
+def _outcome(result: TrainingResult) -> dict[str, Any]:
+    """What a training did: its epochs, its kept checkpoint and its wall time (meta.json)."""
+    return {
+        "epochs": len(result.losses),
+        "best_epoch": result.best_epoch,
+        "best_val_loss": result.best_val_loss,
+        "wall_seconds": result.wall_seconds,
+    }
+
+
+def _fingerprint(
+    name: str,
+    spec: dict[str, Any],
+    data_section: dict[str, Any],
+    training_section: dict[str, Any],
+    seed: int,
+    epochs: int | None,
+    threads: int,
+    data_sha256: str,
+) -> str:
+    """The training's identity, the key of its resumable checkpoint: everything its numbers
+    depend on (a checkpoint never resumes under another setting)."""
+    compile_cfg = training_section.get("compile") or {}
+    compiled = bool(compile_cfg.get("enabled", False))
+    kernels = in_effect(training_section.get("kernels"))
+    return training_fingerprint(
+        model=name,
+        spec={k: v for k, v in spec.items() if k not in PRESENTATION_KEYS},
+        ts=float(data_section["ts"]),
+        seed=seed,
+        epochs=int(epochs if epochs is not None else spec["train"]["epochs"]),
+        split=data_section["split"],
+        data_sha256=data_sha256,
+        threads=threads,
+        fused=bool(training_section.get("fused_adam", True)),
+        compiled=compiled,
+        cpp_wrapper=compiled and bool(compile_cfg.get("cpp_wrapper", False)),
+        step=TRAINING_STEP,
+        torch=torch.__version__,
+        format=FORMAT_VERSION,
+        **({"kernels": kernels} if kernels else {}),
     )
