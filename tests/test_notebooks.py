@@ -43,6 +43,13 @@ def test_the_html_copy_names_the_config_sections_instead_of_printing_their_json(
     ast.parse(short)  # still code, as the page shows it
 
 
+def test_a_long_list_of_paths_is_summarised_by_its_count() -> None:
+    paths = ",".join(f"results/runs/learned/rep0/epm/epm/pid/eta0/seed{s}/timeseries.parquet"
+                     for s in range(5))  # fmt: skip
+    short = short_parameters(f'# Parameters\nseries_paths = "{paths}"\n', "learned.ipynb")
+    assert short.splitlines()[1].startswith('series_paths = "…"  # 5 files, the first results/')
+
+
 def test_short_parameters_leave_short_values_and_other_code_alone() -> None:
     source = '# Parameters\nstudy = "bicycle"\neta_table = 1.0\nnote = "' + "x" * 50 + '"'
     assert short_parameters(source).splitlines()[1:] == source.splitlines()[1:]

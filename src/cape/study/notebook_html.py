@@ -30,7 +30,8 @@ HEADER = "# Parameters passed by the workflow (papermill): they replace the defa
 
 
 def _summary(value: str, record: str) -> str:
-    """What a long string parameter held: the config sections of a JSON object, by name."""
+    """What a long string parameter held: the config sections of a JSON object, by name; the
+    number of files of a comma-separated list of paths."""
     try:
         parsed = json.loads(value)
     except ValueError:
@@ -38,6 +39,9 @@ def _summary(value: str, record: str) -> str:
     where = f"{len(value):,} characters, in full in {record}"
     if isinstance(parsed, dict):
         return f"JSON of the config sections {', '.join(map(str, parsed))} ({where})"
+    items = value.split(",")
+    if len(items) > 1 and all(item and " " not in item for item in items):
+        return f"{len(items)} files, the first {items[0]} ({where})"
     return where
 
 
