@@ -19,8 +19,8 @@ when a process starts; without ``ACADOS_SOURCE_DIR`` acados stops at a prompt to
 template renderer).
 
 The same optimal control problem (SPEC §7.3) is posed from the project's own definitions: the
-internal model's step (``NominalNMPC.model_step``) is acados's discrete dynamics, the stage's
-residual and track offset (``NominalNMPC.stage_terms``) are its least-squares cost and its
+internal model's step (``TrackingOCP.model_step``) is acados's discrete dynamics, the stage's
+residual and track offset (``TrackingOCP.stage_terms``) are its least-squares cost and its
 nonlinear constraint, with Φ, d̂, Θ and each stage's reference, centre point and normal as the
 stage's parameters. The controls are the input *changes* Δu (the commanded input is a state):
 the rate bound is then a bound on a control, the input bounds are state bounds, and the cost's

@@ -159,7 +159,7 @@ def benchmark_lap(
     )
 
     def merit(i: int, plan: np.ndarray) -> float:
-        return default.backend.merit(*problems[i], plan)
+        return default.solver.merit(*problems[i], plan)
 
     merged["plans"] = replays[0]["plans"]
     rows = {

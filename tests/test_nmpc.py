@@ -242,8 +242,8 @@ def test_the_rescue_counts_the_solves_it_saved(cfg, rescue: str) -> None:
     as succeeded."""
     run = _run(_with_rescue(cfg, rescue))
     assert run.controller.rescue.library.name.startswith(f"{rescue}_nlp_")
-    backend = run.controller.solver
-    real = backend.solve
+    solver = run.controller.solver
+    real = solver.solve
     calls = {"n": 0}
 
     def failing(*args, **kw):
@@ -251,7 +251,7 @@ def test_the_rescue_counts_the_solves_it_saved(cfg, rescue: str) -> None:
         plan, ok = real(*args, **kw)
         return (plan, ok and calls["n"] % 10 != 0)
 
-    backend.solve = failing
+    solver.solve = failing
     result = run()
     assert result.metrics["success"], result.metrics
     tried = result.metrics["rescues"]

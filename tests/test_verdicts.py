@@ -305,6 +305,8 @@ def test_a_row_of_replicate_0_alone_holds_everywhere_it_was_measured() -> None:
     table = frame([row(HOLDS), row(HOLDS, INCONCLUSIVE), row(HOLDS, HOLDS)], [0, 1])
     assert list(table["verdict rep1"]) == ["not run", INCONCLUSIVE, HOLDS]  # not run: rep0's
     assert counts(table)["hold for every network"] == 2  # the first and the last
+    from_csv = pd.DataFrame(table.to_dict())  # read back: no attrs, the columns say it
+    assert not from_csv.attrs and counts(from_csv)["hold for every network"] == 2
 
 
 def test_a_claim_the_study_cannot_evaluate_is_listed_with_why() -> None:

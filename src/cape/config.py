@@ -8,6 +8,7 @@ sections it needs (as JSON), so a change in one section reruns only the jobs tha
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 from pathlib import Path
@@ -27,7 +28,7 @@ def _fill_defaults(instance: Any, schema: dict[str, Any]) -> None:
         return
     for key, sub in schema.get("properties", {}).items():
         if key not in instance and "default" in sub:
-            instance[key] = sub["default"]
+            instance[key] = copy.deepcopy(sub["default"])  # never the (cached) schema's own
         if key in instance:
             _fill_defaults(instance[key], sub)
     extra = schema.get("additionalProperties")

@@ -370,7 +370,7 @@ def example_series(study):
     return [
         f"{computed.folder()}/timeseries.parquet"
         for run, computed in GRID.items()
-        if run.study == study and run.eta == "0" and run.seed == 0 and run.replicate == 0
+        if run.study == study and float(run.eta) == 0 and run.seed == 0 and run.replicate == 0
     ]
 
 

@@ -21,9 +21,9 @@ rule aggregate:
     conda:
         CAPE_ENV
     log:
-        "{scope}/logs/study/aggregate.log",
+        paths.scoped("{scope}", "logs", "study", "aggregate.log"),
     benchmark:
-        "{scope}/benchmarks/study/aggregate.tsv"
+        paths.scoped("{scope}", "benchmarks", "study", "aggregate.tsv")
     shell:
         "cape aggregate --out {output.runs:q} --summary {output.summary:q} --models-root {params.models:q}"
         " --replicates {params.replicates} --config-json {params.cfg:q} > {log:q} 2>&1"
@@ -194,14 +194,14 @@ rule notebook_scorecard:
         summary=paths.study_summary(),
         raceline=raceline_path(),
     output:
-        report("{scope}/tables/table08_scorecard.md", caption="../report/scorecard.rst", category="Claims"),
-        multiext("{scope}/tables/table08_scorecard", ".csv", ".tex"),
-        *(f"{{scope}}/tables/{name}{ext}" for name in WHOLE_STUDY_NOTEBOOKS["scorecard"].tables if name != "table08_scorecard" for ext in TABLE_EXTS),
-        *reported_figures("scorecard", "{scope}/figures", "../report/scorecard.rst", "Claims"),
-        figures("scorecard", "{scope}/figures", ".pdf"),
+        report(paths.scoped("{scope}", "tables", "table08_scorecard.md"), caption="../report/scorecard.rst", category="Claims"),
+        multiext(paths.scoped("{scope}", "tables", "table08_scorecard"), ".csv", ".tex"),
+        *(paths.scoped("{scope}", "tables", f"{name}{ext}") for name in WHOLE_STUDY_NOTEBOOKS["scorecard"].tables if name != "table08_scorecard" for ext in TABLE_EXTS),
+        *reported_figures("scorecard", paths.scoped("{scope}", "figures"), "../report/scorecard.rst", "Claims"),
+        figures("scorecard", paths.scoped("{scope}", "figures"), ".pdf"),
         report(paths.GLANCE, caption="../report/glance.rst", category="Claims"),
-        notebook="{scope}/notebooks/scorecard.ipynb",
-        html="{scope}/notebooks/scorecard.html",
+        notebook=paths.scoped("{scope}", "notebooks", "scorecard.ipynb"),
+        html=paths.scoped("{scope}", "notebooks", "scorecard.html"),
     params:
         nb=lambda wildcards, input: papermill_args(
             config_json=config_json(
@@ -221,7 +221,7 @@ rule notebook_scorecard:
     conda:
         CAPE_ENV
     log:
-        "{scope}/logs/notebooks/scorecard.log",
+        paths.scoped("{scope}", "logs", "notebooks", "scorecard.log"),
     localrule: True
     shell:
         run_notebook("{params.nb}")

@@ -115,7 +115,7 @@ def build_internal(
     ts = float(section(config, "data")["ts"])
     parsed = PlantName.parse(name, models, "--internal")
     kind, model_name = parsed.kind, parsed.model
-    if kind == "truth":
+    if parsed.is_truth:
         structure = truth_structure(models)
         physics = model_class(structure, models[structure])(models[structure], ts)
         truth = GROUND_TRUTH.as_dict()
@@ -197,7 +197,7 @@ def build_run(
     transform = disturbances.plant_params
     loaded: dict[str, TrainedModel] = {}
     folders = ModelFolders.of(models_dir)
-    if kind == "truth":
+    if plant_parsed.is_truth:
         compiled = section(config, "rollout").get("compile")
         plant: Plant = TruthPlant(GROUND_TRUTH.as_dict(), ts, transform, compiled)
     elif kind == "learned":
@@ -211,7 +211,7 @@ def build_run(
         plant = FixedParameterPlant(physics, frozen_phi(folders, str(model_name)), transform)
     envelope = None
     factor = section(config, "rollout").get("plant_envelope")
-    if kind != "truth" and factor is not None:
+    if not plant_parsed.is_truth and factor is not None:
         train_track = section(config, "data")["train_track"]
         path = envelope_data or paths.dataset(train_track)
         envelope = Envelope.of_file(path, float(factor))

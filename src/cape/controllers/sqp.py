@@ -72,7 +72,7 @@ class CondensedSQP:
     the previous solution when there is one.
 
     ``terms(x_next, u, u_before, e, p, k)`` returns the stage's cost, steering change, track
-    offset and least-squares residual (``NominalNMPC.stage_terms``); ``step(x, u, p)`` is the
+    offset and least-squares residual (``TrackingOCP.stage_terms``); ``step(x, u, p)`` is the
     internal model's step with the NLP's parameters; ``layout`` names the slices of the NLP's
     parameter vector (of length ``n_param``) holding the previous input and the track bound."""
 

@@ -1,8 +1,8 @@
 """The NMPC's problem stage by stage, for Fatrop (SPEC §7.3: any solver of the same OCP).
 
-The same optimal control problem as ``NominalNMPC.nlp``, written in the form Fatrop's structure
-detection reads: the decision vector stage by stage, ``[x_0, u_0 | x_1, c_1, u_1, ε_1 | … |
-x_N, c_N, ε_N]``, each stage's controls (u_k, ε_k) after its state, so that the slack ε_k of
+The same optimal control problem as ``TrackingOCP.nlp`` (``cape.controllers.ocp``), written
+in the form Fatrop's structure detection reads: the decision vector stage by stage,
+``[x_0, u_0 | x_1, c_1, u_1, ε_1 | … | x_N, c_N, ε_N]``, each stage's controls (u_k, ε_k) after its state, so that the slack ε_k of
 the track bound on p_k is a control of stage k; the constraints stage by stage, the gap first,
 then the stage's path constraints (the soft track bound on p_k, the steering rate of u_k). A
 path constraint may not reach back to the previous stage, and the steering rate and the cost's

@@ -9,6 +9,8 @@ checkout's root when run by Snakemake.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from cape.layout.names import REPLICATE_PREFIX, replicate_name
 
 RESULTS = "results"
@@ -66,6 +68,11 @@ def training_dir(model: str, training_seed: int) -> str:
 
 def model_dir(model: str, replicate: int = 0) -> str:
     return MODEL.format(model=model, replicate=int(replicate))
+
+
+def model_under(root: str | Path, model: str, replicate: int) -> Path:
+    """A model's draw ``replicate`` under a models folder ``root`` (``MODELS`` or a copy)."""
+    return Path(root, replicate_name(replicate), model)
 
 
 def models_of(replicate: int = 0) -> str:

@@ -28,7 +28,8 @@ from scipy import stats
 
 from cape.errors import CapeError
 from cape.integrity import KEY
-from cape.layout.names import TRUTH, replicate_name
+from cape.layout import paths
+from cape.layout.names import TRUTH
 from cape.layout.record import read_metrics, read_timing, verify_series
 from cape.layout.runs import RunId
 
@@ -64,7 +65,7 @@ class CurrentModels:
         if key not in self._seen:
             from cape.models.trained import read_meta
 
-            folder = self.root / replicate_name(replicate) / model
+            folder = paths.model_under(self.root, model, replicate)
             self._seen[key] = (folder / "meta.json", str(read_meta(folder).get("weights_sha256")))
         return self._seen[key]
 

@@ -11,7 +11,7 @@ import pandas as pd
 
 from cape.errors import CapeError
 from cape.io import read_csv
-from cape.layout.names import replicate_name
+from cape.layout import paths
 
 
 def read_replicate_tables(
@@ -61,7 +61,7 @@ def check_table_models(table: pd.DataFrame, path: str, replicate: int, model_roo
             f"{path}: records no model weights (written by an earlier version of cape); {fix}"
         )
     for row in table.itertuples(index=False):
-        folder = Path(model_root, replicate_name(replicate), str(row.model))
+        folder = paths.model_under(model_root, str(row.model), replicate)
         digest = str(read_meta(folder).get("weights_sha256") or "")
         made, found = row.replicate, str(row.weights_sha256)
         if pd.isna(made) or int(made) != replicate or found != digest:
@@ -82,7 +82,7 @@ def read_trainings(
     losses, best = {}, {}
     for r in replicates:
         for m in models:
-            losses[(r, m)], meta = read_training(Path(model_root, replicate_name(r), m))
+            losses[(r, m)], meta = read_training(paths.model_under(model_root, m, r))
             best[(r, m)] = float(meta["best_val_loss"])
     return losses, best
 
@@ -95,4 +95,4 @@ def read_draws(
     from cape.models.trained import read_meta
 
     draws = [(r, m) for r in replicates for m in models]
-    return {(r, m): read_meta(Path(model_root, replicate_name(r), m)) for r, m in draws}
+    return {(r, m): read_meta(paths.model_under(model_root, m, r)) for r, m in draws}

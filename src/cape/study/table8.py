@@ -106,8 +106,11 @@ def frame(rows: Iterable[ClaimRow], replicates: Sequence[int]) -> pd.DataFrame:
 
 
 def draws_of(table: pd.DataFrame) -> list[int]:
-    """The training draws a table 8 was evaluated over."""
-    return list(table.attrs.get(DRAWS_KEY, []))
+    """The training draws a table 8 was evaluated over: as ``frame`` recorded them, else (a
+    table read back from its CSV, or concatenated) those whose verdict column it has."""
+    if DRAWS_KEY in table.attrs:
+        return list(table.attrs[DRAWS_KEY])
+    return [r for r in range(len(table.columns)) if verdict_column(r) in table.columns]
 
 
 def draw_verdicts(table: pd.DataFrame) -> pd.DataFrame:
