@@ -853,11 +853,15 @@ def test_a_plain_install_works_outside_the_checkout(setup: dict, tmp_path: Path)
     """`pip install .` (not editable) into a folder of its own: from outside the checkout,
     `cape --help`, a rollout with a config file and the config's validation all work, reading
     the schemas from the installed package (never REPO_ROOT/workflow)."""
-    target, elsewhere = tmp_path / "site", tmp_path / "elsewhere"
+    target, elsewhere, source = tmp_path / "site", tmp_path / "elsewhere", tmp_path / "source"
     elsewhere.mkdir()
+    # a copy of what the package is built from: the build leaves nothing in the checkout
+    shutil.copytree(REPO_ROOT / "src", source / "src", ignore=shutil.ignore_patterns("*.egg-info"))
+    for name in ("pyproject.toml", "README.md", "LICENSE"):
+        shutil.copy(REPO_ROOT / name, source / name)
     built = subprocess.run(
         [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation",
-         "--target", str(target), str(REPO_ROOT)],
+         "--target", str(target), str(source)],
         capture_output=True, text=True, timeout=300, cwd=elsewhere,
     )  # fmt: skip
     assert built.returncode == 0, built.stderr[-2000:]
