@@ -292,3 +292,24 @@ def test_the_aggregation_reads_a_shared_run_where_the_workflow_computed_it(tmp_p
     runs = pd.read_parquet(out)
     cells = set(zip(runs["study"], runs["internal"], runs["lap_time"], strict=True))
     assert cells == {("learned", "epm", 7.4), ("ablation", "epm", 7.4), ("ablation", "truth", 7.5)}
+
+
+@pytest.mark.parametrize(
+    ("sections", "message"),
+    [
+        ({}, "lacks the `controllers` section"),
+        ({"controllers": {"pid": {}}, "training": {"replicates": 1},
+          "study": {"seeds": 1, "studies": {"t": {"plants": ["truth"], "controllers": ["pidd"]}}}},
+         "names controller 'pidd'"),
+    ],
+)  # fmt: skip
+def test_aggregate_names_what_its_grid_lacks(tmp_path: Path, capsys, sections, message) -> None:
+    """The grid `cape aggregate` builds from --config-json: a missing section or an unknown
+    controller is one line and exit 2, never a traceback."""
+    config = {"study": {"seeds": 1, "studies": {}}, "disturbances": {"eta": ["0"]}, **sections}
+    out, summary = str(tmp_path / "r.parquet"), str(tmp_path / "s.parquet")
+    code = main(["aggregate", "--root", str(tmp_path), "--out", out, "--summary", summary,
+                 "--config-json", json.dumps(config)])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # nothing written

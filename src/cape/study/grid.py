@@ -101,14 +101,18 @@ def study_grid(config: Mapping[str, Any], source: str = "config") -> dict[RunId,
     config's order; ``CapeError`` first when the grid exceeds ``study.max_runs``. Reads the
     ``study`` section, ``disturbances.eta``, ``training.replicates`` and which of the
     ``controllers`` predict with an internal model."""
+    from cape.config import section
     from cape.controllers import controller_class
 
-    controllers = config["controllers"]
+    controllers = section(config, "controllers")
 
     def uses_internal(name: str) -> bool:
+        if name not in controllers:
+            raise CapeError(f"{source}: the grid names controller {name!r}, not in `controllers`")
         return bool(controller_class(name, controllers[name]).needs_internal_model)
 
-    etas = list(config["disturbances"]["eta"])
-    replicates = int(config["training"]["replicates"])
-    check_grid_size(config["study"], etas, uses_internal, source, replicates)
-    return canonical(study_runs(config["study"], etas, uses_internal, replicates))
+    etas = list(section(config, "disturbances").get("eta", []))
+    replicates = int(section(config, "training").get("replicates", 1))
+    grid = section(config, "study")
+    check_grid_size(grid, etas, uses_internal, source, replicates)
+    return canonical(study_runs(grid, etas, uses_internal, replicates))
