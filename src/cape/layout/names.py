@@ -3,8 +3,8 @@
 A plant (or an NMPC's internal model) is named ``truth`` (the ground-truth car, SPEC §1), a
 model's name (its learned Φ) or ``<model>-fixed`` (its frozen Φ, SPEC §4.5): ``PlantName`` parses
 and prints these names, and nothing else does. A training replicate (draw) r is spelled
-``rep<r>`` in every folder and column that carries it: ``replicate_name`` and
-``parse_replicate`` are the two directions.
+``rep<r>`` in every folder and column that carries it (``replicate_name``); nothing reads it
+back out of a name: whoever needs the number is given it.
 """
 
 from __future__ import annotations
@@ -91,12 +91,6 @@ def replicate_name(replicate: int | str) -> str:
     """Training replicate (draw) ``replicate`` as folders and columns spell it: ``rep<r>``
     (a wildcard ``{replicate}`` gives the pattern)."""
     return f"{REPLICATE_PREFIX}{replicate}"
-
-
-def parse_replicate(name: str) -> int | None:
-    """The replicate ``name`` spells (``rep<r>``), or None when it spells none."""
-    match = re.fullmatch(REPLICATE_PREFIX + r"([0-9]+)", name)
-    return int(match.group(1)) if match else None
 
 
 def truth_structure(models: Mapping[str, Any]) -> str:

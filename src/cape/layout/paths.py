@@ -11,10 +11,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from cape.layout.names import REPLICATE_PREFIX, replicate_name
+from cape.layout.names import replicate_name
 
 RESULTS = "results"
-REP = REPLICATE_PREFIX + "{replicate}"
+REP = replicate_name("{replicate}")
 """A training replicate (draw) as a folder name, a wildcard pattern."""
 
 
