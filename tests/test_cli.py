@@ -56,7 +56,8 @@ def test_data_command_writes_the_published_set(
     with np.load(out) as npz:
         assert sorted(npz.files) == sorted(["time", "states", "dstates", "inputs", "vrefs"])
         np.testing.assert_array_equal(npz["dstates"], datasets["ETHZMobil"]["dstates"])
-    assert [p.name for p in tmp_path.iterdir()] == [out.name]  # written atomically, no leftovers
+    # written atomically, no leftovers; its owner record beside it (cape.ownership)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([out.name, f".{out.name}.owner"])
 
 
 def test_unknown_track_is_a_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

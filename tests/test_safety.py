@@ -135,7 +135,7 @@ def test_rollout_replaces_its_own_earlier_output(setup: dict, tmp_path: Path) ->
         result = rollout(setup, out)
         assert result.returncode == 0, result.stderr
         assert sorted(os.listdir(out)) == sorted(RUN_FILES)
-    assert sorted(os.listdir(tmp_path)) == ["run"]  # nothing left aside
+    assert sorted(os.listdir(tmp_path)) == [".run.owner", "run"]  # nothing left aside
 
 
 # --- 5, 10. a run's files are checked before they are aggregated ------------------------------
@@ -357,7 +357,7 @@ def test_a_network_left_from_earlier_weights_is_refused(
     # another model into this model's folder: refused before anything is written
     kept = {n: (folder / n).read_bytes() for n in ("model.pt", "meta.json", "loss.csv")}
     other = cape(*[("ddm" if a == "dpm" else a) for a in train])
-    one_message(other, f"--out {folder}: holds a trained 'dpm' of no replicate, not 'ddm'",
+    one_message(other, f"--out {folder}: holds trained model dpm, not trained model ddm",
                 "nothing was changed")  # fmt: skip
     assert {n: (folder / n).read_bytes() for n in kept} == kept
 
@@ -788,7 +788,7 @@ def test_train_refuses_a_folder_with_a_model_it_did_not_write(setup: dict, tmp_p
     (mine / "model.pt").write_bytes(b"my own network")
     result = cape("train", "--model", "dpm", "--data", str(tmp_path / "unused.npz"), "--out",
                   str(mine), "--config", str(setup["config"]))  # fmt: skip
-    one_message(result, str(mine), "model.pt", "not a model CAPE trained")
+    one_message(result, str(mine), "model.pt", "CAPE did not write")
     assert (mine / "model.pt").read_bytes() == b"my own network"
 
 

@@ -147,22 +147,54 @@ def write_text(path: str | os.PathLike[str], text: str) -> None:
     write_bytes(path, text.encode("utf-8"))
 
 
-def read_npz(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
+def read_npz(
+    path: str | os.PathLike[str], keys: Collection[str] = (), what: str = "", fix: str = ""
+) -> dict[str, np.ndarray]:
     """Every array of the ``.npz`` at ``path``, or ``CapeError`` naming the file and the fix
-    (missing, empty, not an npz archive, or damaged)."""
+    (missing, empty, not an npz archive, damaged, or without one of ``keys``: then it is not
+    ``what``, and ``fix`` says what to give instead)."""
     path = Path(path)
+    rebuild = fix or f"build it with `snakemake --cores 2 {path}`"
     if not path.is_file():
-        raise CapeError(f"{path}: not found; build it with `snakemake --cores 2 {path}`")
+        where = "is a folder" if path.is_dir() else "not found"
+        raise CapeError(f"{path}: {where}; {rebuild}")
     import zipfile
 
     try:
         with np.load(path, allow_pickle=False) as npz:
-            return {k: npz[k] for k in npz.files}
+            arrays = {k: npz[k] for k in npz.files}
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, AttributeError) as exc:
         raise CapeError(
-            f"{path}: not a readable .npz ({type(exc).__name__}: {exc}); delete it and rebuild "
-            f"it with `snakemake --cores 2 {path}`"
+            f"{path}: not a readable .npz ({type(exc).__name__}: {exc}); "
+            + (fix or f"delete it and rebuild it with `snakemake --cores 2 {path}`")
         ) from None
+    missing = [k for k in keys if k not in arrays]
+    if missing:
+        raise CapeError(
+            f"{path}: has no {', '.join(repr(k) for k in missing)} array"
+            + (f", so it is not {what}" if what else "")
+            + f"; {rebuild}"
+        )
+    return arrays
+
+
+def read_json(path: str | os.PathLike[str], what: str, fix: str) -> Any:
+    """The JSON document at ``path`` (``what`` it should be), or one ``CapeError`` naming the
+    file, what is wrong and ``fix``: missing, unreadable, not JSON, or not a JSON object."""
+    import json
+
+    path = Path(path)
+    try:
+        body = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise CapeError(f"{path}: missing; {fix}") from None
+    except IsADirectoryError:
+        raise CapeError(f"{path}: is a folder, not {what}; {fix}") from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise CapeError(f"{path}: not {what} ({type(exc).__name__}: {exc}); {fix}") from None
+    if not isinstance(body, dict):
+        raise CapeError(f"{path}: not {what} (not a JSON object); {fix}")
+    return body
 
 
 def read_csv(path: str | os.PathLike[str], missing: str, damaged: str) -> Any:

@@ -75,7 +75,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run one subcommand. A ``CapeError`` or a failed read or write (a full disk) becomes a
     one-line message and exit status 2; Ctrl-C and SIGTERM a one-line message and 130 or 143.
     Every output is written atomically, so none of these leaves a half-written file."""
+    from cape import ownership
+
     args = build_parser().parse_args(argv)
+    succeeded = False
     main_thread = threading.current_thread() is threading.main_thread()
     previous = {}
     if main_thread:  # raise, and remember for the loop (cape.interrupt: IPOPT swallows it)
@@ -83,6 +86,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         previous[signal.SIGINT] = signal.signal(signal.SIGINT, _interrupted)
     try:
         args.func(args)
+        succeeded = True
     except CapeError as exc:
         print(f"cape {args.command}: error: {exc}", file=sys.stderr)
         return 2
@@ -96,6 +100,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"cape {args.command}: terminated; no output was left half-written", file=sys.stderr)
         return 143
     finally:
+        ownership.release(succeeded)  # the outputs' locks; a failure's empty claims removed
         for number, handler in previous.items():
             signal.signal(number, handler)
         interrupt.requested.clear()

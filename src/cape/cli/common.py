@@ -113,10 +113,30 @@ def _config(args: argparse.Namespace) -> dict[str, Any]:
     return config_from_args(args.config, args.config_json)
 
 
-def _load_npz(path: str) -> dict[str, Any]:
-    from cape.io import read_npz
+def _read_dataset(path: str) -> dict[str, Any]:
+    from cape.data.bayesrace import read_dataset
 
-    return read_npz(path)
+    return read_dataset(path)
+
+
+TABLE_SUFFIXES = (".csv", ".md", ".tex")
+FIGURE_SUFFIXES = (".pdf", ".png", ".svg")
+JSON_SUFFIXES = (".json",)
+
+
+def _claim(args: argparse.Namespace, *outputs: Any) -> None:
+    """Claim this command's outputs (``cape.ownership``) before any work: each refused with one
+    line unless it is new or this command's own earlier output; held until the command ends."""
+    from cape import ownership
+
+    ownership.claim(outputs, f"cape {args.command}")
+
+
+def _files(paths: list[str], kind: str, suffixes: tuple[str, ...], option: str = "--out") -> list:
+    """The ``ownership.Output`` of each file of a repeatable output flag."""
+    from cape.ownership import Output
+
+    return [Output(Path(p), kind, suffixes=suffixes, option=option) for p in paths]
 
 
 PROVENANCE_COLUMNS = ("replicate", "weights_sha256")

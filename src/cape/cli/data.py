@@ -9,11 +9,14 @@ import argparse
 from pathlib import Path
 
 from cape.cli.common import (
+    FIGURE_SUFFIXES,
     _add_config_args,
     _add_outputs,
     _add_tracks_dir,
+    _claim,
     _config,
     _entry,
+    _files,
     _tracks_dir,
     command,
 )
@@ -32,11 +35,19 @@ def _tracks_arguments(p: argparse.ArgumentParser) -> None:
 @command("tracks", "obtain and verify the BayesRace track files (SPEC §2)", _tracks_arguments)
 def cmd_tracks(args: argparse.Namespace) -> None:
     from cape.config import section
-    from cape.tracks.fetch import obtain_tracks
+    from cape.ownership import Output
+    from cape.tracks.fetch import BAYESRACE_FILES, obtain_tracks
 
     cfg = section(_config(args), "tracks")
     mirror = args.mirror if args.mirror is not None else cfg.get("mirror")
     dest = Path(args.dest or cfg["dir"])
+
+    def tracks_only(folder: Path) -> str | None:  # a folder this command filled before
+        return "" if all(p.name in BAYESRACE_FILES for p in folder.iterdir()) else None
+
+    option = "--dest" if args.dest else "tracks.dir"
+    _claim(args, Output(dest, "folder of track files", folder=True, option=option,
+                        recognise=tracks_only))  # fmt: skip
     obtain_tracks(
         dest=dest,
         mirror=Path(mirror) if mirror else None,
@@ -58,12 +69,14 @@ def cmd_data(args: argparse.Namespace) -> None:
     from cape.config import section
     from cape.data.bayesrace import ProtocolSettings, generate_dataset
     from cape.io import save_npz
+    from cape.ownership import Output
     from cape.tracks.track import load_raceline
     from cape.vehicle.params import GROUND_TRUTH
 
     config = _config(args)
     data_cfg = section(config, "data")
     track_cfg = _entry(args.track, data_cfg["tracks"], "--track", "data.tracks")
+    _claim(args, Output(Path(args.out), "data set", args.track, (".npz",)))
     tracks_dir = _tracks_dir(args, config)
     settings = ProtocolSettings.from_config(data_cfg, args.track)
     raceline = load_raceline(tracks_dir, track_cfg["raceline"])
@@ -89,9 +102,8 @@ def _plot_tracks_arguments(p: argparse.ArgumentParser) -> None:
     "plot-tracks", "figure of the tracks, racelines and generated data", _plot_tracks_arguments
 )
 def cmd_plot_tracks(args: argparse.Namespace) -> None:
-    import numpy as np
-
     from cape.config import section
+    from cape.data.bayesrace import read_dataset
     from cape.plots.style import save_figure
     from cape.plots.tracks import TrackPanel, plot_tracks
     from cape.tracks.track import load_raceline, load_track
@@ -100,6 +112,7 @@ def cmd_plot_tracks(args: argparse.Namespace) -> None:
     catalogue = section(config, "tracks")["catalogue"]
     data_tracks = section(config, "data")["tracks"]
     tracks_dir = _tracks_dir(args, config)
+    _claim(args, *_files(args.out, "figure of the tracks", FIGURE_SUFFIXES))
     panels = []
     for item in args.data:
         name, sep, path = item.partition("=")
@@ -108,8 +121,7 @@ def cmd_plot_tracks(args: argparse.Namespace) -> None:
                 f"--data {item}: expected TRACK=PATH with TRACK one of {sorted(data_tracks)}"
             )
         entry = catalogue[name]
-        with np.load(path) as npz:
-            dataset = {k: npz[k] for k in npz.files}
+        dataset = read_dataset(path)
         panels.append(
             TrackPanel(
                 track=load_track(tracks_dir, name, entry["prefix"], entry["width"]),
@@ -143,6 +155,7 @@ def cmd_raceline(args: argparse.Namespace) -> None:
     from cape.config import section
     from cape.integrity import sealed_arrays
     from cape.io import save_npz
+    from cape.ownership import Output
     from cape.plots.style import save_figure
     from cape.plots.tracks import plot_raceline
     from cape.tracks.raceline import build_raceline, lap_time
@@ -154,6 +167,8 @@ def cmd_raceline(args: argparse.Namespace) -> None:
     settings = section(config, "reference")
     catalogue = section(config, "tracks")["catalogue"]
     entry = _entry(args.track, catalogue, "--track", "tracks.catalogue")
+    _claim(args, Output(Path(args.out), "raceline", args.track, (".npz",)),
+           *_files(args.figure or [], "raceline figure", FIGURE_SUFFIXES, "--figure"))  # fmt: skip
     tracks_dir = _tracks_dir(args, config)
     track = load_track(tracks_dir, args.track, entry["prefix"], entry["width"])
     line = build_raceline(track, settings, GROUND_TRUTH, ACTUATOR_LIMITS)

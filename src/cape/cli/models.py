@@ -11,13 +11,18 @@ from pathlib import Path
 from typing import Any
 
 from cape.cli.common import (
+    FIGURE_SUFFIXES,
+    JSON_SUFFIXES,
     PROVENANCE_COLUMNS,
+    TABLE_SUFFIXES,
     _add_config_args,
     _add_models,
     _add_outputs,
+    _claim,
     _config,
+    _files,
     _load_models,
-    _load_npz,
+    _read_dataset,
     _with_provenance,
     command,
 )
@@ -96,13 +101,13 @@ def cmd_train(args: argparse.Namespace) -> None:
             raise CapeError(f"{option} {value}: give a number of at least {least}")
     spec = _model_spec(config, args.model)
     out = Path(args.out)
-    _check_model_folder(out, args.model, args.replicate)  # before training
+    _claim(args, _model_output(out, args.model, args.replicate))  # before training
     run = run_training(
         args.model,
         spec,
         section(config, "data"),
         section(config, "training"),
-        _load_npz(args.data),
+        _read_dataset(args.data),
         Path(args.data),
         out,
         seed=args.seed,
@@ -123,36 +128,26 @@ def cmd_train(args: argparse.Namespace) -> None:
     )
 
 
-def _check_model_folder(out: Path, model: str, replicate: int | None) -> None:
-    """``cape train`` replaces a model folder's ``model.pt``, ``meta.json`` and ``loss.csv``
-    only if they are the same model CAPE wrote (its ``meta.json`` readable, naming ``model``
-    and ``replicate``): never a user's files of the same names, never another model's or
-    replicate's training, never a file given as the folder."""
+def _model_output(out: Path, model: str, replicate: int | None) -> Any:
+    """A model folder as an output (``cape.ownership``): a trained ``model`` of ``replicate``
+    (None: a training that is no draw), as ``cape train`` and ``cape draw`` write it. A folder
+    from before owner records is recognised by its readable ``meta.json``."""
     from cape.models.trained import read_meta
+    from cape.ownership import Output
 
-    if out.exists() and not out.is_dir():
-        raise CapeError(f"--out {out}: exists and is not a folder; choose a model folder")
-    present = [n for n in ("model.pt", "meta.json", "loss.csv") if (out / n).exists()]
-    if not present:
-        return
-    try:
-        meta = read_meta(out)
-    except CapeError as exc:
-        raise CapeError(
-            f"--out {out}: holds {', '.join(present)} that are not a model CAPE trained ({exc}); "
-            "nothing was changed. Choose another folder, or delete those files"
-        ) from None
-    if meta["name"] != model or meta.get("replicate", replicate) != replicate:
+    def recognise(folder: Path) -> str | None:
+        try:
+            meta = read_meta(folder)
+        except CapeError:
+            return None
+        return _model_identity(str(meta["name"]), meta.get("replicate"))
 
-        def said(r: int | None) -> str:
-            return "no replicate" if r is None else f"replicate {r}"
+    return Output(out, "trained model", _model_identity(model, replicate), folder=True,
+                  recognise=recognise)  # fmt: skip
 
-        raise CapeError(
-            f"--out {out}: holds a trained {meta['name']!r} of {said(meta.get('replicate'))}, "
-            f"not {model!r} of {said(replicate)}; nothing was changed. Train it into its own "
-            f"folder ({paths.TRAINING.format(model=model, training_seed='<s>')}), or delete that "
-            "folder first"
-        )
+
+def _model_identity(model: str, replicate: int | None) -> str:
+    return model if replicate is None else f"{model} of replicate {replicate}"
 
 
 def _check_training_arguments(p: argparse.ArgumentParser) -> None:
@@ -178,16 +173,17 @@ def cmd_check_training(args: argparse.Namespace) -> None:
     from cape.models.health import training_outcome
     from cape.models.trained import read_meta
     from cape.models.training import TrainingData
+    from cape.ownership import Output
 
-    if Path(args.out).suffix != ".json":
-        raise CapeError(f"--out {args.out}: a health record is a .json file")
     config = _config(args)
+    _claim(args, Output(Path(args.out), "health record", args.model.partition("=")[0],
+                        JSON_SUFFIXES))  # fmt: skip
     ((name, model),) = _load_models([args.model]).items()
     folder = Path(args.model.partition("=")[2])
     meta = read_meta(folder)
     split = section(config, "data")["split"]
     data = TrainingData.from_dataset(
-        _load_npz(args.data), model.history, float(split["train_fraction"]), int(split["seed"])
+        _read_dataset(args.data), model.history, float(split["train_fraction"]), int(split["seed"])
     )
     losses = read_csv(
         folder / "loss.csv",
@@ -240,6 +236,8 @@ def cmd_draw(args: argparse.Namespace) -> None:
 
     if args.replicate < 0 or args.max_trainings < 1:
         raise CapeError("--replicate is at least 0 and --max-trainings at least 1")
+    out = Path(args.out)
+    _claim(args, _model_output(out, args.model, args.replicate))
     trainings = [Path(t) for t in args.training]
 
     def outcome(k: int) -> Outcome:
@@ -265,8 +263,6 @@ def cmd_draw(args: argparse.Namespace) -> None:
             f"{source}/health.json: is about other weights than {source}/model.pt; delete it "
             "and rerun snakemake"
         )
-    out = Path(args.out)
-    _check_model_folder(out, args.model, args.replicate)
     meta["replicate"] = args.replicate
     meta["draw"] = {
         "training": str(source),
@@ -309,12 +305,15 @@ def cmd_freeze(args: argparse.Namespace) -> None:
     from cape.models.evaluate import frozen_parameters
     from cape.models.trained import read_meta
     from cape.models.training import TrainingData
+    from cape.ownership import Output
 
     config = _config(args)
     split = section(config, "data")["split"]
+    _claim(args, Output(Path(args.out), "frozen parameters", args.model.partition("=")[0],
+                        JSON_SUFFIXES))  # fmt: skip
     ((name, model),) = _load_models([args.model]).items()
     data = TrainingData.from_dataset(
-        _load_npz(args.data), model.history, float(split["train_fraction"]), int(split["seed"])
+        _read_dataset(args.data), model.history, float(split["train_fraction"]), int(split["seed"])
     )
     frozen = frozen_parameters(model, data.train)
     folder = args.model.partition("=")[2]
@@ -347,7 +346,25 @@ def cmd_export_network(args: argparse.Namespace) -> None:
         raise CapeError(
             f"--model {args.model}: expected NAME=FOLDER, e.g. epm={paths.model_dir('epm')}"
         )
-    out = export_network(folder, args.out, expected_name=name)
+    from cape.closedloop.provenance import model_replicate
+    from cape.models.trained import read_meta
+    from cape.ownership import Output
+
+    meta = read_meta(folder)
+    target = Path(args.out) if args.out else Path(folder) / "network.npz"
+
+    def recognise(path: Path) -> str | None:  # a network.npz from before owner records
+        from cape.io import read_npz
+
+        try:
+            same = str(read_npz(path).get("weights_sha256")) == meta.get("weights_sha256")
+        except CapeError:
+            return None
+        return identity if same else None
+
+    identity = _model_identity(name, model_replicate(meta))
+    _claim(args, Output(target, "network", identity, (".npz",), recognise=recognise))
+    out = export_network(folder, target, expected_name=name)
     print(f"wrote {out}: the {name} network for the closed loop")
     compile_settings = _config(args).get("rollout", {}).get("compile")
     if compile_settings and compile_settings.get("enabled", False):
@@ -381,8 +398,9 @@ def cmd_openloop(args: argparse.Namespace) -> None:
     from cape.tables import write_table
 
     config = _config(args)
+    _claim(args, *_files(args.out, "open-loop error table", TABLE_SUFFIXES))
     horizon = int(section(config, "training").get("multistep_horizon", 15))
-    train, test = _load_npz(args.train_data), _load_npz(args.test_data)
+    train, test = _read_dataset(args.train_data), _read_dataset(args.test_data)
     table = openloop_table(
         _load_models(args.model), train, test, section(config, "data")["split"], horizon
     )
@@ -427,9 +445,10 @@ def cmd_complexity(args: argparse.Namespace) -> None:
     from cape.tables import write_table
 
     config = _config(args)
+    _claim(args, *_files(args.out, "complexity table", TABLE_SUFFIXES))
     torch.set_num_threads(1)
     models = _load_models(args.model)
-    data = _load_npz(args.data)
+    data = _read_dataset(args.data)
     windows = {name: make_windows(data, m.history).features[100] for name, m in models.items()}
     repeats = int(section(config, "training").get("inference_repeats", 2000))
     table = complexity_table(models, windows, repeats)
@@ -471,10 +490,13 @@ def cmd_plot_models(args: argparse.Namespace) -> None:
     from cape.vehicle.params import GROUND_TRUTH
 
     config = _config(args)
+    figures = _files(args.phi_out, "figure of predicted Φ", FIGURE_SUFFIXES, "--phi-out")
+    figures += _files(args.curves_out, "figure of training curves", FIGURE_SUFFIXES, "--curves-out")
+    _claim(args, *figures)
     ts = float(section(config, "data")["ts"])
     models = _load_models(args.model)
     colors, labels = _colors_labels(config, list(models))
-    data = _load_npz(args.data)
+    data = _read_dataset(args.data)
     phis, time = {}, None
     for name, model in models.items():
         windows = make_windows(data, model.history)

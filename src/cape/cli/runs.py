@@ -8,16 +8,22 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+from typing import Any
 
 from cape.cli.common import (
+    FIGURE_SUFFIXES,
+    JSON_SUFFIXES,
     STARTED,
     _add_config_args,
     _add_model_folders,
     _add_outputs,
+    _claim,
     _config,
+    _files,
     _model_folders,
     command,
 )
+from cape.errors import CapeError
 from cape.layout.names import TRUTH
 
 PLANT_KINDS = "dpm|ddm|epm (learned), dpm-fixed|ddm-fixed|epm-fixed, or truth"
@@ -43,8 +49,11 @@ def cmd_build_solver(args: argparse.Namespace) -> None:
 
     from cape.closedloop.setup import build_run
     from cape.io import write_text
+    from cape.ownership import Output
 
     config = _config(args)
+    identity = f"{args.controller} with internal model {args.internal}"
+    _claim(args, Output(Path(args.out), "solver record", identity, JSON_SUFFIXES))
     run = build_run(
         config,
         TRUTH,  # the plant does not enter the controller's NLP
@@ -111,7 +120,8 @@ def cmd_rollout(args: argparse.Namespace) -> None:
                 args.seed, args.replicate)  # fmt: skip
     check_run(run)
     out = Path(args.out)
-    check_replaceable(out, RUN_FILES, RUN_WHAT)  # before the lap, not after it
+    _claim(args, _run_output(out, run))  # before the lap, not after it
+    check_replaceable(out, RUN_FILES, RUN_WHAT)
     record = run_job(
         config,
         run,
@@ -133,6 +143,27 @@ def cmd_rollout(args: argparse.Namespace) -> None:
     print(f"{run_name}: {status}, lap time {metrics['lap_time']}")
 
 
+def _run_output(out: Path, run: Any) -> Any:
+    """A run folder as an output (``cape.ownership``): the run ``run``. A folder from before
+    owner records is recognised by its ``metrics.json``."""
+    from cape.layout.record import read_metrics
+    from cape.layout.runs import RunId
+    from cape.ownership import Output
+
+    def identity(r: RunId) -> str:
+        return "/".join(r.parts())
+
+    def recognise(folder: Path) -> str | None:
+        try:
+            m = read_metrics(folder / "metrics.json", expected=run)
+        except CapeError:
+            return None
+        return identity(RunId(m["study"], m["plant"], m["internal"], m["controller"], m["eta"],
+                              m["seed"], m["replicate"]))  # fmt: skip
+
+    return Output(out, "run", identity(run), folder=True, recognise=recognise)
+
+
 def _plot_rollout_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--run", required=True, help="a run folder (metrics.json, timeseries.parquet)")
     _add_outputs(p, "--out", ".pdf or .png")
@@ -152,6 +183,7 @@ def cmd_plot_rollout(args: argparse.Namespace) -> None:
     from cape.plots.style import save_figure
 
     config = _config(args)
+    _claim(args, *_files(args.out, "figure of a run", FIGURE_SUFFIXES))
     run = Path(args.run)
     metrics = read_metrics(run / "metrics.json")
     series = read_series(run)

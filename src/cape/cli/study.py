@@ -10,6 +10,7 @@ from typing import Any
 
 from cape.cli.common import (
     _add_config_args,
+    _claim,
     _config,
     command,
 )
@@ -44,10 +45,14 @@ def _aggregate_arguments(p: argparse.ArgumentParser) -> None:
 )
 def cmd_aggregate(args: argparse.Namespace) -> None:
     from cape.io import write_files
+    from cape.ownership import Output
     from cape.study.aggregate import collect_runs, summarise
     from cape.study.grid import study_grid
 
     config = _config(args)
+    _claim(args, Output(Path(args.out), "table of runs", suffixes=(".parquet",)),
+           Output(Path(args.summary), "summary of cells", suffixes=(".parquet",),
+                  option="--summary"))  # fmt: skip
     paths = [Path(p) for p in args.runs]
     if args.runs_from:
         paths += [Path(line) for line in Path(args.runs_from).read_text().split() if line]

@@ -37,19 +37,14 @@ class Envelope:
     @classmethod
     def of_file(cls, path: str | Path, factor: float) -> Envelope:
         """The envelope of the training data set in ``path`` (an .npz of `cape data`)."""
-        try:
-            with np.load(path) as data:
-                return cls.of_data({"states": data["states"]}, factor)
-        except FileNotFoundError:
+        from cape.data.bayesrace import read_dataset
+
+        if not Path(path).is_file():
             raise CapeError(
                 f"{path}: missing; a learned plant's envelope is measured on its training data: "
                 f"build it (snakemake --cores 2 {path}) or pass --training-data"
-            ) from None
-        except (KeyError, ValueError, OSError) as exc:
-            raise CapeError(
-                f"{path}: not a training data set with states ({exc}); rebuild it "
-                f"(snakemake --cores 2 {path})"
-            ) from None
+            )
+        return cls.of_data(read_dataset(path), factor)
 
     def left(self, x: np.ndarray) -> bool:
         """Whether the plant state ``x`` (X, Y, ψ, vx, vy, ω) is non-finite or beyond the

@@ -10,17 +10,46 @@ and they are reproduced to 1e-9.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from cape.data.purepursuit import PurePursuit
+from cape.errors import CapeError
+from cape.layout import paths
 from cape.tracks.track import Raceline
 from cape.vehicle.dynamics import state_derivative
 from cape.vehicle.integrators import rkf_step
 from cape.vehicle.params import VehicleParams
 
 DATASET_KEYS = ("time", "states", "dstates", "inputs", "vrefs")
+
+
+def read_dataset(path: str | Path) -> dict[str, np.ndarray]:
+    """A DYN-PP data set as ``cape data`` writes it, or ``CapeError`` naming the file, what is
+    wrong (not an .npz, an array missing, of another shape, or not finite) and the fix."""
+    from cape.io import read_npz
+
+    fix = f"give a data set `cape data` wrote (snakemake --cores 2 {paths.dataset('ETHZ')})"
+    what = "a DYN-PP data set"
+    arrays = read_npz(path, DATASET_KEYS, what, fix)
+    time = arrays["time"]
+    if time.ndim != 1 or len(time) < 2:
+        raise CapeError(f"{path}: array 'time' has shape {time.shape}, so it is not {what}; {fix}")
+    n = len(time) - 1
+    shapes = {"time": (n + 1,), "vrefs": (n + 1,), "states": (6, n + 1), "dstates": (8, n + 1),
+              "inputs": (2, n)}  # fmt: skip
+    for key, shape in shapes.items():
+        array = arrays[key]
+        if array.shape != shape:
+            raise CapeError(
+                f"{path}: array {key!r} has shape {array.shape}, not {shape}, so it is not "
+                f"{what}; {fix}"
+            )
+        if array.dtype.kind not in "fiu" or not np.all(np.isfinite(array)):
+            raise CapeError(f"{path}: array {key!r} holds non-numbers, so it is not {what}; {fix}")
+    return arrays
 
 
 @dataclass(frozen=True)

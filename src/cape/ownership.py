@@ -1,0 +1,258 @@
+"""One write policy: a command replaces only its own earlier output, and one writer at a time.
+
+Every file or folder a ``cape`` command or a benchmark writes is claimed first, before any
+work (``claim``). An output is described by what it is and which one (``Output``: a run of
+the same run, a network of the same model and replicate, a table of the same table). The
+claim refuses, with one line naming the path and the fix, and changes nothing:
+
+- a suffix the output cannot be written as;
+- ``/``, the home folder, the working folder or any folder above it, and the repository;
+- a symbolic link, or a file where a folder belongs (and the reverse);
+- an existing output whose owner record says it is another kind or another one. So is one
+  that has no such record (a user's file, a copy of another table, a folder of other
+  files), unless the command's own record inside it names the same output (``recognise``);
+- an output another writer holds right now.
+
+The owner record is a small hidden file beside the output, ``.<name>.owner``. It holds the
+kind and identity. It is also the writer's lock (``flock``), held until the command ends
+(``release``), so two writers of one output cannot both win. A failed command removes the
+record it made for an output that does not exist, and the folders it made for it, so it
+leaves nothing behind.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import json
+import os
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from cape.errors import CapeError
+
+Recognise = Callable[[Path], "str | None"]
+"""An existing output without an owner record → the identity its own record names (a run
+folder's metrics.json, a model folder's meta.json), or None when it is not one of the kind."""
+
+
+@dataclass(frozen=True)
+class Output:
+    """An output to claim: its path, what it is (``kind``), which one (``identity``; empty
+    when any output of the kind is the same, e.g. a table), the suffixes a file may have
+    (empty: any) and whether it is a folder. ``option`` names it in messages."""
+
+    path: Path
+    kind: str
+    identity: str = ""
+    suffixes: tuple[str, ...] = ()
+    folder: bool = False
+    option: str = "--out"
+    recognise: Recognise | None = field(default=None, compare=False)
+
+    def described(self) -> str:
+        return f"{self.kind} {self.identity}".strip()
+
+
+@dataclass
+class _Held:
+    output: Output
+    fd: int
+    record: Path
+    existed: bool  # the output existed when claimed
+    checked: bool = False  # the claim succeeded: the output may be written
+    made: list[Path] = field(
+        default_factory=list
+    )  # folders the claim created, outermost first, then the record it made
+
+    def output_exists(self) -> bool:
+        path = self.output.path
+        if self.output.folder:
+            return path.is_dir() and any(path.iterdir())
+        return path.exists()
+
+
+_HELD: list[_Held] = []
+
+
+def owner_record(path: str | os.PathLike[str]) -> Path:
+    """The owner record of the output at ``path``: ``.<name>.owner`` beside it."""
+    path = Path(path)
+    return path.parent / f".{path.name}.owner"
+
+
+def repository_root() -> Path | None:
+    """The CAPE checkout this code runs from, if it runs from one."""
+    root = Path(__file__).resolve().parents[2]
+    return root if (root / "Snakefile").is_file() and (root / "src" / "cape").is_dir() else None
+
+
+def _protected(path: Path) -> str | None:
+    """Why ``path`` may never be an output, or None."""
+    try:
+        resolved = path.resolve()
+        here = Path.cwd().resolve()
+    except (OSError, RuntimeError):
+        return None
+    home = Path.home().resolve() if "HOME" in os.environ else None
+    if resolved == Path(resolved.anchor):
+        return "the file system's root"
+    if home is not None and resolved == home:
+        return "the home folder"
+    if resolved == here or resolved in here.parents:
+        return "the working folder or a folder above it"
+    repo = repository_root()
+    if repo is not None and (resolved == repo or resolved in repo.parents):
+        return "the CAPE repository or a folder above it"
+    return None
+
+
+def _read_owner(record: Path) -> tuple[str, str] | None:
+    try:
+        body = json.loads(record.read_text())
+        return str(body["kind"]), str(body["identity"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def _refuse(out: Output, why: str) -> CapeError:
+    return CapeError(f"{out.option} {out.path}: {why}; nothing was changed")
+
+
+def _check_place(out: Output) -> None:
+    path = out.path
+    if path.name in ("", ".", ".."):
+        raise _refuse(out, "is not a name a file or folder can be written to; give one")
+    if not out.folder and out.suffixes and path.suffix.lower() not in out.suffixes:
+        raise _refuse(out, f"a {out.kind} is written as {', '.join(out.suffixes)}; give one of "
+                           "those suffixes")  # fmt: skip
+    why = _protected(path)
+    if why is not None:
+        raise _refuse(out, f"is {why}, never an output; give a new path (e.g. under results/)")
+    if path.is_symlink():
+        raise _refuse(out, "is a symbolic link; give the path itself")
+    if path.exists() and path.is_dir() != out.folder:
+        which = "a folder" if path.is_dir() else "a file"
+        wanted = "a folder" if out.folder else "a file"
+        raise _refuse(out, f"is {which}, and a {out.kind} is {wanted}; give another path")
+    for parent in path.parents:
+        if parent.exists() and not parent.is_dir():
+            raise _refuse(out, f"{parent} is a file, not a folder; give another path")
+        if parent.exists():
+            break
+
+
+def _check_owner(out: Output, record: Path) -> None:
+    """Refuse unless the output is absent, an empty folder, or the same output."""
+    path = out.path
+    if not path.exists() or (out.folder and not any(path.iterdir())):
+        return
+    owner = _read_owner(record)
+    if owner is not None:
+        if owner == (out.kind, out.identity):
+            return
+        kind, identity = owner
+        raise _refuse(out, f"holds {f'{kind} {identity}'.strip()}, not {out.described()}, "
+                           "so it is not this command's to replace; give another path")  # fmt: skip
+    if out.recognise is not None and out.recognise(path) == out.identity:
+        return
+    if out.folder:
+        names = sorted(p.name for p in path.iterdir())
+        shown = ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "")
+        what = f"a folder of other files ({shown})"
+    else:
+        what = "a file"
+    raise _refuse(out, f"is {what} that CAPE did not write as {out.described()} (no owner record "
+                       f"{record.name} says so); give another path, or delete it first if you "
+                       "mean to replace it")  # fmt: skip
+
+
+def _lock(out: Output, record: Path) -> int:
+    """Open and lock ``record`` (created if absent); the same inode as the path's, so a record
+    removed meanwhile by a failed writer is never the one locked."""
+    for _ in range(5):
+        fd = os.open(record, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise _refuse(out, "another command is writing it right now; wait for it to end, or "
+                               "give another path") from None  # fmt: skip
+        try:
+            same = os.fstat(fd).st_ino == os.stat(record).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            return fd
+        os.close(fd)
+    raise _refuse(out, "its owner record keeps changing under another writer; try again")
+
+
+def claim(outputs: Sequence[Output], command: str) -> None:
+    """Check every output (all before any is locked or written) and take each one's lock and
+    owner record; raise ``CapeError`` naming the first that may not be written. Held until
+    ``release``."""
+    seen: dict[Path, Output] = {}
+    for out in outputs:
+        _check_place(out)
+        key = Path(os.path.abspath(out.path))
+        if key in seen:
+            raise _refuse(out, f"is given twice ({seen[key].option} and {out.option}); give "
+                               "each output its own path")  # fmt: skip
+        seen[key] = out
+    held: list[_Held] = []
+    try:
+        for out in outputs:
+            made = [p for p in reversed(out.path.parents) if not p.exists()]
+            out.path.parent.mkdir(parents=True, exist_ok=True)
+            record = owner_record(out.path)
+            existed_record = record.exists()
+            fd = _lock(out, record)
+            entry = _Held(out, fd, record, out.path.exists(), made=made)
+            held.append(entry)
+            if not existed_record:
+                entry.made.append(record)  # removed again if it is refused or fails
+            _check_owner(out, record)
+            entry.checked = True
+            body = {"kind": out.kind, "identity": out.identity, "written_by": command}
+            data = (json.dumps(body, sort_keys=True) + "\n").encode()
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, data, 0)
+    except BaseException:
+        _release(held, success=False)
+        raise
+    _HELD.extend(held)
+
+
+def _release(held: list[_Held], success: bool) -> None:
+    for entry in reversed(held):
+        if not success and (not entry.checked or not entry.output_exists()):
+            for made in reversed(entry.made):
+                with contextlib.suppress(OSError):
+                    if made == entry.record:
+                        made.unlink()
+                    else:
+                        made.rmdir()
+        os.close(entry.fd)
+
+
+def release(success: bool = True) -> None:
+    """Let go of every output this process claimed. After a failure, an output that does not
+    exist loses the owner record and the folders its claim made."""
+    held = list(_HELD)
+    _HELD.clear()
+    _release(held, success)
+
+
+@contextlib.contextmanager
+def claimed(outputs: Sequence[Output], command: str) -> Iterator[None]:
+    """``claim`` for the block, ``release`` after it (success unless it raised): for scripts
+    and tests that are not a ``cape`` command."""
+    claim(outputs, command)
+    try:
+        yield
+    except BaseException:
+        release(success=False)
+        raise
+    release(success=True)
