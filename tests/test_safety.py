@@ -119,7 +119,7 @@ def test_rollout_refuses_a_folder_it_did_not_write(setup: dict, tmp_path: Path) 
     for name in (".git", "config", "results"):
         (checkout / name).mkdir(parents=True)
     (checkout / "config" / "config.yaml").write_text("mine")
-    one_message(rollout(setup, Path("."), cwd=checkout), ".git")
+    one_message(rollout(setup, Path("."), cwd=checkout), "the working folder")
     assert (checkout / "config" / "config.yaml").read_text() == "mine"
 
     a_file = tmp_path / "notes.txt"

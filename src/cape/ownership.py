@@ -122,20 +122,20 @@ def _refuse(out: Output, why: str) -> CapeError:
 
 def _check_place(out: Output) -> None:
     path = out.path
-    if path.name in ("", ".", ".."):
-        raise _refuse(out, "is not a name a file or folder can be written to; give one")
     if not out.folder and out.suffixes and path.suffix.lower() not in out.suffixes:
         raise _refuse(out, f"a {out.kind} is written as {', '.join(out.suffixes)}; give one of "
                            "those suffixes")  # fmt: skip
     why = _protected(path)
     if why is not None:
         raise _refuse(out, f"is {why}, never an output; give a new path (e.g. under results/)")
+    if path.name in ("", ".", ".."):
+        raise _refuse(out, "is not a name a file or folder can be written to; give one")
     if path.is_symlink():
         raise _refuse(out, "is a symbolic link; give the path itself")
     if path.exists() and path.is_dir() != out.folder:
-        which = "a folder" if path.is_dir() else "a file"
-        wanted = "a folder" if out.folder else "a file"
-        raise _refuse(out, f"is {which}, and a {out.kind} is {wanted}; give another path")
+        which, wanted = ("a folder", "a file") if path.is_dir() else ("a file", "a folder")
+        raise _refuse(out, f"is {which}, not {wanted} (a {out.kind} is {wanted}); give another "
+                           "path")  # fmt: skip
     for parent in path.parents:
         if parent.exists() and not parent.is_dir():
             raise _refuse(out, f"{parent} is a file, not a folder; give another path")
