@@ -8,9 +8,11 @@ sections it needs (as JSON), so a change in one section reruns only the jobs tha
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import json
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -38,8 +40,22 @@ def _fill_defaults(instance: Any, schema: dict[str, Any]) -> None:
                 _fill_defaults(value, extra)
 
 
-def check_consistency(config: dict[str, Any], source: str = "config") -> None:
-    """Cross-field rules a JSON schema cannot express; raise ``CapeError`` naming the field."""
+def check_consistency(
+    config: dict[str, Any], source: str = "config", partial: bool = False
+) -> None:
+    """Cross-field rules a JSON schema cannot express; raise ``CapeError`` naming the field.
+    A partial config (the sections a rule passes) is checked on the rules its sections hold."""
+    if "tracks" in config and "data" in config:
+        _check_tracks(config, source)
+    _check_training(config, source)
+    for name in ("models", "controllers"):
+        _check_distinct(config.get(name) or {}, name, source)
+    _check_eta_labels(config, source)
+    if "study" in config and (not partial or {"models", "controllers"} <= config.keys()):
+        _check_grid(config, source)
+
+
+def _check_tracks(config: dict[str, Any], source: str) -> None:
     catalogue = config["tracks"]["catalogue"]
     data = config["data"]
     for name in data["tracks"]:
@@ -62,6 +78,27 @@ def check_consistency(config: dict[str, Any], source: str = "config") -> None:
                 f"{source}: field `data.{key}` is {data[key]!r}, which is not one of "
                 f"`data.tracks` ({sorted(data['tracks'])}); choose one of those."
             )
+
+
+def _check_distinct(entries: dict[str, Any], name: str, source: str) -> None:
+    """Two entries of ``name`` with the same label or colour would be one in every legend."""
+    for key in ("label", "color"):
+        seen: dict[str, str] = {}
+        for entry, settings in entries.items():
+            value = settings.get(key) if isinstance(settings, dict) else None
+            if not isinstance(value, str):
+                continue
+            spelled = " ".join(value.split()).lower()
+            if spelled in seen:
+                raise CapeError(
+                    f"{source}: field `{name}.{entry}.{key}` is {value!r}, the same as "
+                    f"`{name}.{seen[spelled]}.{key}`; give each its own, or the figures' legends "
+                    "cannot tell them apart"
+                )
+            seen[spelled] = entry
+
+
+def _check_training(config: dict[str, Any], source: str) -> None:
     training = config.get("training") or {}
     cap = training.get("max_trainings")
     if cap is not None and cap < int(training.get("replicates", 1)):
@@ -69,9 +106,6 @@ def check_consistency(config: dict[str, Any], source: str = "config") -> None:
             f"{source}: field `training.max_trainings` is {cap}, below `training.replicates` "
             f"({training['replicates']}): a model could never have its draws; raise it or set null"
         )
-    _check_eta_labels(config, source)
-    if "study" in config:
-        _check_grid(config, source)
 
 
 ETA_RANGE = (0.0, 5.0)
@@ -197,11 +231,18 @@ def _refuse_renamed(config: dict[str, Any], source: str) -> None:
             )
 
 
-def validate_config(config: dict[str, Any], source: str = "config") -> dict[str, Any]:
-    """Validate ``config`` against the schema (filling defaults) and the cross-field rules."""
+def validate_config(
+    config: dict[str, Any], source: str = "config", partial: bool = False
+) -> dict[str, Any]:
+    """Validate ``config`` against the schema (filling defaults) and the cross-field rules.
+    ``partial``: the sections a rule passes (``--config-json``): none is required, and no
+    default is filled in (the workflow filled them when it validated the whole config)."""
     _refuse_renamed(config, source)
     schema = schemas.load_schema(schemas.CONFIG)
-    _fill_defaults(config, schema)
+    if partial:
+        schema = {k: v for k, v in schema.items() if k != "required"}
+    else:
+        _fill_defaults(config, schema)
     validator = schemas.validator(schema)
     errors = sorted(validator.iter_errors(config), key=lambda e: list(e.absolute_path))
     if errors:
@@ -215,7 +256,7 @@ def validate_config(config: dict[str, Any], source: str = "config") -> dict[str,
             f"Fix the value; {schemas.shown(schemas.CONFIG)} describes every key."
         )
     _check_finite(config, source)
-    check_consistency(config, source)
+    check_consistency(config, source, partial)
     return config
 
 
@@ -264,8 +305,41 @@ def config_from_args(config_path: str | None, config_json: str | None) -> dict[s
             raise CapeError(f"--config-json is not valid JSON ({exc})") from exc
         if not isinstance(sections, dict):
             raise CapeError("--config-json must be a JSON object of config sections")
+        marker = _validated_marker(config_json)
+        if marker is not None and marker.is_file():  # these very sections passed before
+            return sections
+        validate_config(sections, "--config-json", partial=True)
+        if marker is not None:
+            with contextlib.suppress(OSError):
+                marker.touch()
         return sections
     return load_config(config_path or DEFAULT_CONFIG)
+
+
+def _validated_marker(config_json: str) -> Path | None:
+    """Where a mark says that ``config_json`` passed ``validate_config`` (partial): a file
+    named by the digest of the text, the schema and the checking code, in a folder of this
+    user's (``$TMPDIR/cape-<uid>/validated``). The workflow hands thousands of jobs the same
+    sections, and importing jsonschema would be a third of a short job's wall time
+    (docs/design.md); None where no private folder can be had."""
+    import hashlib
+    import tempfile
+
+    digest = hashlib.sha256(config_json.encode())
+    try:
+        digest.update(schemas.schema_bytes(schemas.CONFIG))
+        digest.update(Path(__file__).read_bytes())
+    except OSError:
+        return None
+    folder = Path(tempfile.gettempdir()) / f"cape-{os.getuid()}" / "validated"
+    try:
+        folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+        info = folder.parent.stat()
+    except OSError:
+        return None
+    if info.st_uid != os.getuid() or info.st_mode & 0o022:  # another's, or others may write
+        return None
+    return folder / digest.hexdigest()
 
 
 def section(config: dict[str, Any], name: str) -> Any:

@@ -197,15 +197,44 @@ def read_json(path: str | os.PathLike[str], what: str, fix: str) -> Any:
     return body
 
 
-def read_csv(path: str | os.PathLike[str], missing: str, damaged: str) -> Any:
-    """``pandas.read_csv(path)``, or one ``CapeError`` naming the file: ``missing`` (its fix)
-    when it does not exist, ``damaged`` (what it is not, and the fix) when pandas cannot read
-    it, followed by pandas' reason."""
+def read_csv(
+    path: str | os.PathLike[str],
+    missing: str,
+    damaged: str,
+    columns: Collection[str] = (),
+    sep: str = ",",
+    rows: bool = False,
+) -> Any:
+    """``pandas.read_csv(path, sep=sep)``, or one ``CapeError`` naming the file: ``missing``
+    (its fix) when it does not exist, ``damaged`` (what it is not, and the fix; ``{reason}``
+    is replaced by pandas' reason) when pandas cannot read it, lacks one of ``columns``, or
+    (``rows``) has no rows."""
     import pandas as pd
 
     try:
-        return pd.read_csv(path)
+        frame = pd.read_csv(path, sep=sep)
     except FileNotFoundError:
         raise CapeError(f"{path}: missing; {missing}") from None
+    except IsADirectoryError:
+        raise CapeError(f"{path}: {damaged.format(reason='a folder')}") from None
     except (pd.errors.EmptyDataError, pd.errors.ParserError, UnicodeDecodeError) as exc:
         raise CapeError(f"{path}: {damaged.format(reason=exc)}") from None
+    lacking = [c for c in columns if c not in frame.columns]
+    if lacking or (rows and frame.empty):
+        reason = f"no column {', '.join(lacking)}" if lacking else "no rows"
+        raise CapeError(f"{path}: {damaged.format(reason=reason)}")
+    return frame
+
+
+def read_benchmark(path: str | os.PathLike[str]) -> Any:
+    """A Snakemake ``benchmark:`` file (a TSV of one or more rows with ``s`` and ``cpu_time``),
+    or one ``CapeError`` naming the file and the fix."""
+    fix = "rerun its rule (delete the file, then `snakemake --cores 2` again)"
+    return read_csv(
+        path,
+        f"its rule has not run here; {fix}",
+        "not a Snakemake benchmark record ({reason}); " + fix,
+        columns=("s", "cpu_time"),
+        sep="\t",
+        rows=True,
+    )

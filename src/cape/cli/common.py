@@ -93,6 +93,7 @@ def _model_folders(args: argparse.Namespace) -> Any:
         name, sep, folder = item.partition("=")
         if not sep or not name or not folder:
             raise CapeError(f"--model {item}: expected NAME=DIR, e.g. epm={paths.model_dir('epm')}")
+        _once(name, named, item)
         named[name] = Path(folder)
     root = args.models_dir or paths.models_of(getattr(args, "replicate", 0) or 0)
     return ModelFolders(Path(root), named)
@@ -171,5 +172,12 @@ def _load_models(items: list[str]) -> dict[str, Any]:
             raise CapeError(
                 f"--model {item}: expected NAME=FOLDER, e.g. epm={paths.model_dir('epm')}"
             )
+        _once(name, models, item)
         models[name] = load_model(folder, expected_name=name)
     return models
+
+
+def _once(name: str, given: dict[str, Any], item: str) -> None:
+    """A model named twice by ``--model``: which one would be meant cannot be known."""
+    if name in given:
+        raise CapeError(f"--model {item}: names {name!r} a second time; give each model once")

@@ -113,9 +113,12 @@ def cmd_plot_tracks(args: argparse.Namespace) -> None:
     data_tracks = section(config, "data")["tracks"]
     tracks_dir = _tracks_dir(args, config)
     _claim(args, *_files(args.out, "figure of the tracks", FIGURE_SUFFIXES))
-    panels = []
+    panels, drawn = [], set()
     for item in args.data:
         name, sep, path = item.partition("=")
+        if name in drawn:
+            raise CapeError(f"--data {item}: names {name!r} a second time; give each track once")
+        drawn.add(name)
         if not sep or name not in catalogue or name not in data_tracks:
             raise CapeError(
                 f"--data {item}: expected TRACK=PATH with TRACK one of {sorted(data_tracks)}"

@@ -35,16 +35,30 @@ class Envelope:
         return cls(tuple(float(factor * e) for e in extremes))  # type: ignore[arg-type]
 
     @classmethod
-    def of_file(cls, path: str | Path, factor: float) -> Envelope:
-        """The envelope of the training data set in ``path`` (an .npz of `cape data`)."""
+    def of_file(
+        cls, path: str | Path, factor: float, trained_on: str | None = None
+    ) -> tuple[Envelope, dict[str, str]]:
+        """The envelope of the training data set in ``path`` (an .npz of `cape data`), and
+        where it came from (path and SHA-256, for the run's record). ``trained_on``: the
+        digest of the data the plant's model was trained on (its meta.json), which ``path``
+        must be: a plant is bounded by its own training data, never another track's."""
         from cape.data.bayesrace import read_dataset
+        from cape.integrity import file_digest
 
         if not Path(path).is_file():
             raise CapeError(
                 f"{path}: missing; a learned plant's envelope is measured on its training data: "
                 f"build it (snakemake --cores 2 {path}) or pass --training-data"
             )
-        return cls.of_data(read_dataset(path), factor)
+        envelope = cls.of_data(read_dataset(path), factor)
+        digest = file_digest(path)
+        if trained_on and digest != trained_on:
+            raise CapeError(
+                f"--training-data {path}: is not the data set the plant's model was trained on "
+                f"(its meta.json records data_sha256 {trained_on[:12]}…, this file is "
+                f"{digest[:12]}…); give that model's training data"
+            )
+        return envelope, {"path": str(path), "sha256": digest}
 
     def left(self, x: np.ndarray) -> bool:
         """Whether the plant state ``x`` (X, Y, ψ, vx, vy, ω) is non-finite or beyond the

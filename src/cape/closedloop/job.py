@@ -122,7 +122,9 @@ def run_job(
         "build": built - configured,
         "lap": lapped - built,
     }
-    return RunRecord(metrics, job_timing(result, metrics, phases), result.series, lapped)
+    timing = job_timing(result, metrics, phases)
+    timing["envelope_data"] = assembled.envelope_source  # what bounded the plant (None: none)
+    return RunRecord(metrics, timing, result.series, lapped)
 
 
 def job_timing(result: Any, metrics: Mapping[str, Any], phases: Mapping[str, float]) -> dict:

@@ -142,6 +142,7 @@ class Run:
     settings: dict[str, Any]
     internal: str
     envelope: Envelope | None = None
+    envelope_source: dict[str, str] | None = None  # the training data set: path and digest
 
     def __call__(self) -> RolloutResult:
         s = self.settings
@@ -209,12 +210,13 @@ def build_run(
     else:
         physics = load_physics(folders(str(model_name)), expected_name=model_name)
         plant = FixedParameterPlant(physics, frozen_phi(folders, str(model_name)), transform)
-    envelope = None
+    envelope, envelope_source = None, None
     factor = section(config, "rollout").get("plant_envelope")
     if not plant_parsed.is_truth and factor is not None:
         train_track = section(config, "data")["train_track"]
         path = envelope_data or paths.dataset(train_track)
-        envelope = Envelope.of_file(path, float(factor))
+        trained_on = read_meta(folders(str(model_name))).get("data_sha256")
+        envelope, envelope_source = Envelope.of_file(path, float(factor), trained_on)
     cls = controller_class(controller_name, controllers[controller_name])
     if validate:  # a rule's config was validated when the workflow started
         validate_settings(cls, controller_name, controllers[controller_name])
@@ -246,4 +248,5 @@ def build_run(
         # a controller without an internal model runs on none: its runs are named after the plant
         internal=(internal or default_internal) if cls.needs_internal_model else default_internal,
         envelope=envelope,
+        envelope_source=envelope_source,
     )

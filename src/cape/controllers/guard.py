@@ -24,6 +24,8 @@ import weakref
 from collections.abc import Callable
 from typing import Any
 
+from cape.errors import CapeError
+
 _HEADER = struct.Struct("<Q")
 _TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 
@@ -55,6 +57,11 @@ def _read_exactly(fd: int, size: int) -> bytes | None:
     return b"".join(chunks)
 
 
+class WorkerError(CapeError):
+    """A guarded call failed in its worker for a reason of its own (an exception), not by
+    its CPU limit."""
+
+
 class Guarded:
     """``guarded(request) → handler(request)``, or None when the call used more than
     ``cpu_s`` seconds of CPU (or its worker died otherwise)."""
@@ -84,7 +91,14 @@ class Guarded:
             self.limited += 1
             self.close()
             return None
-        return reply
+        status, value = reply
+        if status == "error":  # the worker's own failure: not a limit, and never silent
+            self.close()
+            raise WorkerError(
+                f"a guarded solver call failed in its worker ({value}), which is not its CPU "
+                f"limit of {self.cpu_s} s; check the controller's settings, else report it"
+            )
+        return value
 
     def _await(self, before: float | None) -> Any | None:
         """The worker's reply, or None once it has used ``cpu_s`` of CPU on this call."""
@@ -130,12 +144,16 @@ class Guarded:
         resource.setrlimit(resource.RLIMIT_CORE, (0, 0))  # SIGXCPU would dump core
         hard = resource.getrlimit(resource.RLIMIT_CPU)[1]
         while (request := _receive(requests)) is not None:
-            used = resource.getrusage(resource.RUSAGE_SELF)
-            soft = int(used.ru_utime + used.ru_stime) + 2 + int(self.cpu_s)
-            if hard != resource.RLIM_INFINITY:
-                soft = min(soft, hard)
-            resource.setrlimit(resource.RLIMIT_CPU, (soft, hard))
-            _send(replies, self.handler(request))
+            try:
+                used = resource.getrusage(resource.RUSAGE_SELF)
+                soft = int(used.ru_utime + used.ru_stime) + 2 + int(self.cpu_s)
+                if hard != resource.RLIM_INFINITY:
+                    soft = min(soft, hard)
+                resource.setrlimit(resource.RLIMIT_CPU, (soft, hard))
+                reply = ("ok", self.handler(request))
+            except Exception as exc:  # told to the caller, which raises it (WorkerError)
+                reply = ("error", f"{type(exc).__name__}: {exc}")
+            _send(replies, reply)
 
     def close(self) -> None:
         """End the worker (it also ends when this object is collected or the process exits)."""

@@ -28,7 +28,13 @@ def load_schema(name: str) -> dict[str, Any]:
     """The schema ``name`` (``CONFIG`` or ``METRICS``), parsed; callers must not modify it."""
     import yaml
 
-    return yaml.safe_load(resources.files(__name__).joinpath(name).read_text(encoding="utf-8"))
+    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml's: a tenth of the time
+    return yaml.load(schema_bytes(name).decode("utf-8"), Loader=loader)
+
+
+def schema_bytes(name: str) -> bytes:
+    """The text of the schema ``name`` as shipped."""
+    return resources.files(__name__).joinpath(name).read_bytes()
 
 
 def jsonschema_module() -> Any:
