@@ -13,8 +13,8 @@ from pathlib import Path
 from cape.config import REPO_ROOT
 
 FLOORS = [
-    ("errors", "io", "integrity", "buffered", "locks", "paper", "tables", "parquet", "interrupt",
-     "bytecode", "schemas"),
+    ("errors", "io", "ownership", "integrity", "buffered", "locks", "paper", "tables", "parquet",
+     "interrupt", "bytecode", "schemas"),
     ("layout",), ("config", "registry", "compiled"), ("vehicle",), ("tracks",), ("data",),
     ("models",), ("controllers",), ("closedloop",), ("plots",), ("study",), ("cli",),
 ]  # fmt: skip

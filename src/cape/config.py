@@ -44,15 +44,17 @@ def check_consistency(
     config: dict[str, Any], source: str = "config", partial: bool = False
 ) -> None:
     """Cross-field rules a JSON schema cannot express; raise ``CapeError`` naming the field.
-    A partial config (the sections a rule passes) is checked on the rules its sections hold."""
-    if "tracks" in config and "data" in config:
-        _check_tracks(config, source)
-    _check_training(config, source)
-    for name in ("models", "controllers"):
-        _check_distinct(config.get(name) or {}, name, source)
-    _check_eta_labels(config, source)
+    ``partial``: the parts of sections a rule passes; a rule whose fields are not all there
+    is not checked (the workflow checked the whole config when it started)."""
+    rules = [_check_tracks, _check_training, _check_distinct, _check_eta_labels]
     if "study" in config and (not partial or {"models", "controllers"} <= config.keys()):
-        _check_grid(config, source)
+        rules.append(_check_grid)  # names every model and controller: needs them all
+    for rule in rules:
+        try:
+            rule(config, source)
+        except (KeyError, TypeError):
+            if not partial:
+                raise
 
 
 def _check_tracks(config: dict[str, Any], source: str) -> None:
@@ -80,8 +82,13 @@ def _check_tracks(config: dict[str, Any], source: str) -> None:
             )
 
 
-def _check_distinct(entries: dict[str, Any], name: str, source: str) -> None:
-    """Two entries of ``name`` with the same label or colour would be one in every legend."""
+def _check_distinct(config: dict[str, Any], source: str) -> None:
+    """Two models (or controllers) with the same label or colour: one in every legend."""
+    for name in ("models", "controllers"):
+        _distinct(config.get(name) or {}, name, source)
+
+
+def _distinct(entries: dict[str, Any], name: str, source: str) -> None:
     for key in ("label", "color"):
         seen: dict[str, str] = {}
         for entry, settings in entries.items():
@@ -129,7 +136,7 @@ def _check_eta_labels(config: dict[str, Any], source: str) -> None:
     whole config: a label names the runs' folders, so ``"1"`` and ``"1.0"`` would be two
     folders of the same runs, counted twice in every table."""
     lists = []
-    if "disturbances" in config:
+    if "eta" in config.get("disturbances", {}):
         lists.append(("disturbances.eta", config["disturbances"]["eta"]))
     for study, grid in (config.get("study") or {}).get("studies", {}).items():
         if "eta" in grid:
@@ -231,6 +238,15 @@ def _refuse_renamed(config: dict[str, Any], source: str) -> None:
             )
 
 
+def _without_required(schema: Any) -> Any:
+    """``schema`` with no key required anywhere: rules pass the parts of sections they read."""
+    if isinstance(schema, dict):
+        return {k: _without_required(v) for k, v in schema.items() if k != "required"}
+    if isinstance(schema, list):
+        return [_without_required(v) for v in schema]
+    return schema
+
+
 def validate_config(
     config: dict[str, Any], source: str = "config", partial: bool = False
 ) -> dict[str, Any]:
@@ -240,7 +256,7 @@ def validate_config(
     _refuse_renamed(config, source)
     schema = schemas.load_schema(schemas.CONFIG)
     if partial:
-        schema = {k: v for k, v in schema.items() if k != "required"}
+        schema = _without_required(schema)
     else:
         _fill_defaults(config, schema)
     validator = schemas.validator(schema)
