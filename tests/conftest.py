@@ -2,16 +2,20 @@
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from cape.config import REPO_ROOT, load_config
 from cape.data.bayesrace import ProtocolSettings, generate_dataset
+from cape.integrity import sealed_arrays
 from cape.tracks.fetch import obtain_tracks
-from cape.tracks.track import load_raceline
-from cape.vehicle.params import GROUND_TRUTH
+from cape.tracks.raceline import build_raceline
+from cape.tracks.track import load_raceline, load_track
+from cape.vehicle.params import ACTUATOR_LIMITS, GROUND_TRUTH
 
 
 @pytest.fixture(scope="session")
@@ -43,3 +47,32 @@ def datasets(track_dir: Path, config: dict) -> dict[str, dict[str, np.ndarray]]:
             load_raceline(track_dir, entry["raceline"]), GROUND_TRUTH, settings
         )
     return out
+
+
+@pytest.fixture(scope="session")
+def setup(
+    track_dir: Path, config: dict, datasets: dict, tmp_path_factory: pytest.TempPathFactory
+) -> dict:
+    """A config file pointing at the verified tracks, the reference raceline and the training
+    data set (whose states bound a learned plant)."""
+    root = tmp_path_factory.mktemp("safety")
+    np.savez(root / "ethz.npz", **datasets["ETHZ"])
+    cfg = copy.deepcopy(config)
+    cfg["tracks"]["dir"] = str(track_dir)
+    cfg["tracks"]["mirror"] = str(track_dir)
+    cfg["training"]["compile"]["enabled"] = False  # two epochs: compiling costs more
+    cfg["rollout"]["compile"]["enabled"] = False  # nothing compiled into the repository
+    for name in ("nmpc", "anmpc", "rnmpc"):
+        cfg["controllers"][name]["compile"]["enabled"] = False
+    config_file = root / "config.yaml"
+    config_file.write_text(yaml.safe_dump(cfg))
+    rl = build_raceline(
+        load_track(track_dir, "ETHZMobil", "ethzMobil", 0.46),
+        config["reference"],
+        GROUND_TRUTH,
+        ACTUATOR_LIMITS,
+    )
+    raceline = root / "line.npz"
+    np.savez(raceline, **sealed_arrays({"x": rl.x, "y": rl.y, "speed": rl.speed}))
+    return {"root": root, "config": config_file, "raceline": raceline, "cfg": cfg,
+            "data": root / "ethz.npz"}  # fmt: skip

@@ -18,83 +18,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from commands import cape, one_message, rollout, rollout_args, snakemake
 
 from cape.config import REPO_ROOT
-from cape.integrity import sealed_arrays
 from cape.layout.runs import RUN_FILES
 from cape.schemas import CONFIG, METRICS, load_schema
-from cape.tracks.raceline import build_raceline
-from cape.tracks.track import load_track
-from cape.vehicle.params import ACTUATOR_LIMITS, GROUND_TRUTH
-
-
-def cape(*args: str, cwd: Path | None = None, timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run(["cape", *args], cwd=cwd, capture_output=True, text=True, timeout=timeout)
-
-
-def snakemake(*args: str, cwd: Path = REPO_ROOT, timeout: float = 300):
-    return subprocess.run(
-        ["snakemake", "-s", str(REPO_ROOT / "Snakefile"), *args],
-        cwd=cwd,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-    )
-
-
-def one_message(result: subprocess.CompletedProcess, *needles: str) -> str:
-    """The command failed with exit status 2 and one message holding every needle."""
-    err = result.stderr
-    assert result.returncode == 2, result.stdout + err
-    assert "Traceback" not in err, err
-    assert len(err.strip().splitlines()) == 1, err
-    for needle in needles:
-        assert needle in err, (needle, err)
-    return err
-
-
-@pytest.fixture(scope="module")
-def setup(
-    track_dir: Path, config: dict, datasets: dict, tmp_path_factory: pytest.TempPathFactory
-) -> dict:
-    """A config file pointing at the verified tracks, the reference raceline and the training
-    data set (whose states bound a learned plant)."""
-    root = tmp_path_factory.mktemp("safety")
-    np.savez(root / "ethz.npz", **datasets["ETHZ"])
-    cfg = copy.deepcopy(config)
-    cfg["tracks"]["dir"] = str(track_dir)
-    cfg["tracks"]["mirror"] = str(track_dir)
-    cfg["training"]["compile"]["enabled"] = False  # two epochs: compiling costs more
-    cfg["rollout"]["compile"]["enabled"] = False  # nothing compiled into the repository
-    for name in ("nmpc", "anmpc", "rnmpc"):
-        cfg["controllers"][name]["compile"]["enabled"] = False
-    config_file = root / "config.yaml"
-    config_file.write_text(yaml.safe_dump(cfg))
-    rl = build_raceline(
-        load_track(track_dir, "ETHZMobil", "ethzMobil", 0.46),
-        config["reference"],
-        GROUND_TRUTH,
-        ACTUATOR_LIMITS,
-    )
-    raceline = root / "line.npz"
-    np.savez(raceline, **sealed_arrays({"x": rl.x, "y": rl.y, "speed": rl.speed}))
-    return {"root": root, "config": config_file, "raceline": raceline, "cfg": cfg,
-            "data": root / "ethz.npz"}  # fmt: skip
-
-
-def rollout_args(setup: dict, out: Path, config: Path | None = None, **names: str) -> list[str]:
-    """`cape rollout` of PID on the ground-truth car at η = 0 (``names`` override the plant,
-    controller, internal model, η, seed or study) with the test's config and raceline."""
-    run = {"plant": "truth", "controller": "pid", "eta": "0", "seed": "0", "study": "truth"}
-    run.update(names)
-    options = [item for key, value in run.items() for item in (f"--{key}", value)]
-    return ["cape", "rollout", *options, "--out", str(out), "--raceline", str(setup["raceline"]),
-            "--training-data", str(setup["data"]),
-            "--config", str(config or setup["config"])]  # fmt: skip
-
-
-def rollout(setup: dict, out: Path, cwd: Path | None = None, **names: str):
-    return cape(*rollout_args(setup, out, **names)[1:], cwd=cwd)
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,49 @@
+"""The real command line, as the tests call it: ``cape`` and ``snakemake`` in a subprocess,
+and what a refusal must look like (one line, exit status 2, no traceback)."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+from cape.config import REPO_ROOT
+
+
+def cape(*args: str, cwd: Path | None = None, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run(["cape", *args], cwd=cwd, capture_output=True, text=True, timeout=timeout)
+
+
+def snakemake(*args: str, cwd: Path = REPO_ROOT, timeout: float = 300):
+    return subprocess.run(
+        ["snakemake", "-s", str(REPO_ROOT / "Snakefile"), *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def one_message(result: subprocess.CompletedProcess, *needles: str) -> str:
+    """The command failed with exit status 2 and one message holding every needle."""
+    err = result.stderr
+    assert result.returncode == 2, result.stdout + err
+    assert "Traceback" not in err, err
+    assert len(err.strip().splitlines()) == 1, err
+    for needle in needles:
+        assert needle in err, (needle, err)
+    return err
+
+
+def rollout_args(setup: dict, out: Path, config: Path | None = None, **names: str) -> list[str]:
+    """`cape rollout` of PID on the ground-truth car at η = 0 (``names`` override the plant,
+    controller, internal model, η, seed or study) with the test's config and raceline."""
+    run = {"plant": "truth", "controller": "pid", "eta": "0", "seed": "0", "study": "truth"}
+    run.update(names)
+    options = [item for key, value in run.items() for item in (f"--{key}", value)]
+    return ["cape", "rollout", *options, "--out", str(out), "--raceline", str(setup["raceline"]),
+            "--training-data", str(setup["data"]),
+            "--config", str(config or setup["config"])]  # fmt: skip
+
+
+def rollout(setup: dict, out: Path, cwd: Path | None = None, **names: str):
+    return cape(*rollout_args(setup, out, **names)[1:], cwd=cwd)
