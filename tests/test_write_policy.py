@@ -17,22 +17,6 @@ import yaml
 from commands import cape, one_message, rollout, rollout_args
 
 
-@pytest.fixture(scope="module")
-def trained(setup: dict, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """Two one-epoch trainings of DPM: one that is no draw, one of replicate 1."""
-    root = tmp_path_factory.mktemp("trained")
-    folders = {}
-    for label, extra in (("plain", []), ("rep1", ["--replicate", "1"])):
-        folder = root / label / "dpm"
-        made = cape("train", "--model", "dpm", "--data", str(setup["data"]), "--out", str(folder),
-                    "--epochs", "1", *extra, "--config", str(setup["config"]))  # fmt: skip
-        assert made.returncode == 0, made.stderr
-        exported = cape("export-network", "--model", f"dpm={folder}")
-        assert exported.returncode == 0, exported.stderr
-        folders[label] = folder
-    return folders
-
-
 def _openloop(setup: dict, trained: dict, *out: Path) -> subprocess.CompletedProcess:
     outs = [a for p in out for a in ("--out", str(p))]
     return cape("openloop", "--model", f"dpm={trained['plain']}", "--train-data",
@@ -133,7 +117,8 @@ def test_train_never_writes_into_root_or_the_working_folder(
     setup: dict, tmp_path: Path, place: str
 ) -> None:
     (tmp_path / "mine.txt").write_text("mine")
-    result = cape("train", "--model", "dpm", "--data", str(setup["data"]), "--out", place,
+    missing = str(tmp_path / "missing.npz")  # were it not refused first, nothing would train
+    result = cape("train", "--model", "dpm", "--data", missing, "--out", place,
                   "--epochs", "1", "--config", str(setup["config"]), cwd=tmp_path)  # fmt: skip
     one_message(result, "never an output")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mine.txt"]
