@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import copy
+import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
+from commands import cape, snakemake
 
 from cape.config import REPO_ROOT, load_config
 from cape.data.bayesrace import ProtocolSettings, generate_dataset
@@ -76,3 +78,48 @@ def setup(
     np.savez(raceline, **sealed_arrays({"x": rl.x, "y": rl.y, "speed": rl.speed}))
     return {"root": root, "config": config_file, "raceline": raceline, "cfg": cfg,
             "data": root / "ethz.npz"}  # fmt: skip
+
+
+@pytest.fixture(scope="session")
+def trained(setup: dict, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Two one-epoch trainings of DPM: one that is no draw, one of replicate 1."""
+    root = tmp_path_factory.mktemp("trained")
+    folders = {}
+    for label, extra in (("plain", []), ("rep1", ["--replicate", "1"])):
+        folder = root / label / "dpm"
+        made = cape("train", "--model", "dpm", "--data", str(setup["data"]), "--out", str(folder),
+                    "--epochs", "1", *extra, "--config", str(setup["config"]))  # fmt: skip
+        assert made.returncode == 0, made.stderr
+        exported = cape("export-network", "--model", f"dpm={folder}")
+        assert exported.returncode == 0, exported.stderr
+        folders[label] = folder
+    return folders
+
+
+def workdir(tmp_path: Path, **track_overrides: object) -> Path:
+    """A scratch working directory with its own config (absolute mirror path)."""
+    work = tmp_path / "work"
+    (work / "config").mkdir(parents=True)
+    cfg = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
+    mirror = cfg["tracks"]["mirror"]
+    cfg["tracks"]["mirror"] = str((REPO_ROOT / mirror).resolve()) if mirror else None
+    cfg["tracks"].update(track_overrides)
+    (work / "config" / "config.yaml").write_text(yaml.safe_dump(cfg))
+    return work
+
+
+@pytest.fixture(scope="session")
+def smoke_study(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The whole workflow on the smoke slice, from nothing, once for the session's slow tests
+    (tests/test_workflow.py, tests/test_benchmarks.py): the default target and the
+    `replicates` target (two training replicates). Its config is config/config.yaml with
+    config/smoke.yaml merged over it (``--configfile config/smoke.yaml``)."""
+    work = workdir(tmp_path_factory.mktemp("smoke"))
+    shutil.copy(REPO_ROOT / "config" / "smoke.yaml", work / "config" / "smoke.yaml")
+    # about 5 minutes on 2 idle cores; the timeout only guards against a hang
+    result = snakemake(
+        "--cores", "2", "-d", str(work), "all", "replicates", "--configfile", "config/smoke.yaml",
+        timeout=1800,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    return work

@@ -14,6 +14,7 @@ import signal
 import sys
 import threading
 from collections.abc import Sequence
+from typing import NoReturn
 
 from cape import interrupt
 from cape.cli import data, models, runs, study  # noqa: F401  (they register their commands)
@@ -23,10 +24,18 @@ from cape.errors import CapeError
 __all__ = ["STARTED", "build_parser", "main"]
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse, but a bad argument is one line (what is wrong and where the help is) and
+    exit status 2, as every other error of ``cape``; the usage is one ``--help`` away."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from cape import __version__
 
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="cape",
         description="CAPE: control algorithm performance evaluation under learned vehicle "
         "dynamics models. Subcommands are the steps of the Snakemake workflow.",
