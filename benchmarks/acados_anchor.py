@@ -62,7 +62,6 @@ from __future__ import annotations
 
 import argparse
 import ctypes
-import json
 import os
 import re
 import sys
@@ -71,18 +70,19 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from _common import add_config, json_output, run, study_config  # a sibling module
 from nmpc_step import Problem, controller_with, record_lap, replay, row
 
-from cape.config import load_config
+from cape.errors import CapeError
+from cape.layout import paths
 
 ENV = ("ACADOS_SOURCE_DIR", "ACADOS_PYTHON_INTERFACE_PATH", "LD_LIBRARY_PATH")
 TIMES = {"c_ms": b"time_tot", "lin_ms": b"time_lin", "condense_ms": b"time_qp_xcond",
          "hpipm_ms": b"time_qp_solver_call"}  # fmt: skip
 INSTALL = (
-    "install acados apart (never into the venv: its wheel's casadi/ would overwrite the venv's):\n"
-    "    pip install --no-deps --target .acados -r benchmarks/requirements-acados.txt\n"
-    "    rm -rf .acados/casadi\n"
-    "then run  python benchmarks/acados_anchor.py --acados .acados"
+    "install acados apart, never into the venv (its wheel's casadi/ would overwrite the venv's): "
+    "`pip install --no-deps --target .acados -r benchmarks/requirements-acados.txt && rm -rf "
+    ".acados/casadi`, then run `python benchmarks/acados_anchor.py --acados .acados`"
 )
 
 
@@ -104,22 +104,22 @@ def ensure_environment(folder: Path) -> None:
     they already are. Exits with what to do when something is missing."""
     root = folder.resolve() / "acados"
     if not (root / "acados_template" / "__init__.py").is_file():
-        raise SystemExit(f"acados not found under {folder}/acados: {INSTALL}")
+        raise CapeError(f"acados is not installed (not found under {folder}/acados); {INSTALL}")
     if (folder / "casadi").exists():
-        raise SystemExit(
+        raise CapeError(
             f"{folder}/casadi is acados's bundled CasADi 3.6.7: delete it (rm -rf "
             f"{folder}/casadi) so that only the venv's CasADi is ever imported"
         )
     renderer = root / "install" / "bin" / "t_renderer"
     if not os.access(renderer, os.X_OK):
-        raise SystemExit(f"{renderer} missing or not executable: reinstall. {INSTALL}")
+        raise CapeError(f"{renderer}: missing or not executable; reinstall: {INSTALL}")
     wanted = acados_environment(folder)
     lib = wanted["LD_LIBRARY_PATH"].split(":")[0]
     current = os.environ.get("LD_LIBRARY_PATH", "").split(":")
     ready = all(os.environ.get(k) == wanted[k] for k in ENV[:2]) and lib in current
     if not ready:
         if os.environ.get("CAPE_ACADOS_RESTARTED"):
-            raise SystemExit(f"acados's environment could not be set; set {', '.join(ENV)}")
+            raise CapeError(f"acados's environment could not be set; set {', '.join(ENV)}")
         env = {**os.environ, **wanted, "CAPE_ACADOS_RESTARTED": "1"}
         os.execve(sys.executable, [sys.executable, *sys.argv], env)
     sys.path.append(str(root))  # after the venv's site-packages: its CasADi comes first
@@ -131,7 +131,7 @@ def check_casadi() -> None:
 
     expected = os.environ.get("CAPE_CASADI_VERSION", "3.8.2")
     if casadi.__version__ != expected or ".acados" in casadi.__file__:
-        raise SystemExit(
+        raise CapeError(
             f"CasADi {casadi.__version__} from {casadi.__file__}, not the venv's {expected}: "
             f"acados's bundled CasADi is on the path or installed over the venv's. {INSTALL}"
         )
@@ -648,8 +648,9 @@ def main() -> None:
                         help="the folder acados was installed into with pip --target")  # fmt: skip
     parser.add_argument("--internal", nargs="+", default=["truth", "epm"])
     parser.add_argument("--eta", nargs="+", type=float, default=[0.0, 4.0])
-    parser.add_argument("--models", type=Path, default=Path("results/models/rep0"))
-    parser.add_argument("--build", type=Path, default=Path("results/acados"),
+    parser.add_argument("--models", type=Path, default=Path(paths.models_of(0)),
+                        help="the draw's models folder (default: draw 0's)")  # fmt: skip
+    parser.add_argument("--build", type=Path, default=Path(paths.RESULTS, "acados"),
                         help="where acados's generated code and libraries go")  # fmt: skip
     parser.add_argument("--condensing", nargs="+", choices=list(CONDENSING),
                         default=["fc", "pc"])  # fmt: skip
@@ -661,19 +662,19 @@ def main() -> None:
                         choices=["BALANCE", "SPEED", "ROBUST"])  # fmt: skip
     parser.add_argument("--repeats", type=int, default=3, help="interleaved replays of each lap")
     parser.add_argument("--json", type=Path, help="also write the figures here")
+    add_config(parser)
     args = parser.parse_args()
     ensure_environment(args.acados)
     check_casadi()
-    config = load_config()
-    results = []
-    for internal in args.internal:
-        default, contenders = build_contenders(config, internal, args)
-        for eta in args.eta:
-            results.append(benchmark_lap(config, internal, eta, args, default, contenders))
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(results, indent=2) + "\n")
+    with json_output(args.json, "acados_anchor.py") as write:
+        config = study_config(args)
+        results = []
+        for internal in args.internal:
+            default, contenders = build_contenders(config, internal, args)
+            for eta in args.eta:
+                results.append(benchmark_lap(config, internal, eta, args, default, contenders))
+        write(results)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run(main))

@@ -9,23 +9,33 @@ order, warm-starting as in a run, alternating between the flag sets ``--repeats`
 this machine's speed drifts between minutes. Prints, per lap: each flag set's median and total
 time per solve, their ratio, and whether every solve's outcome and plan are bit-identical.
 
-    python benchmarks/compile_flags.py [--flags -O1 -O2] [--internal ddm truth] [--eta 0 4]
+    python benchmarks/compile_flags.py [--flags=-O1 --flags=-O2] [--internal ddm truth] [--eta 0 4]
                                        [--models results/models/rep0] [--repeats 3]
+                                       [--problems N] [--configfile config/smoke.yaml]
+
+The models are draw 0's (``cape.layout.paths.models_of(0)``; run it from the study's folder).
+It needs a C compiler (``controllers.nmpc.compile.compiler``), whatever the config's
+``compile.enabled``. ``--problems N`` replays only the lap's first N problems. Each flag set is
+one ``--flags=…`` (with ``=``: a set starts with a dash), e.g. ``--flags="-O2 -march=native"``.
 """
 
 from __future__ import annotations
 
 import argparse
 import shlex
+import shutil
+import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from _common import add_config, run, study_config  # a sibling module
 from nmpc_step import controller_with, record_lap, replay  # a sibling script
 
-from cape.config import load_config
+from cape.errors import CapeError
+from cape.layout import paths
 
 
 def controller_built(
@@ -33,8 +43,8 @@ def controller_built(
 ) -> tuple[Any, float]:
     """The NMPC with its libraries compiled with ``flags`` into ``cache``, and the seconds it
     took to build (compiling included when the cache does not hold them yet)."""
-    compile_settings = {**config["controllers"]["nmpc"]["compile"], "flags": flags,
-                        "cache": str(cache)}  # fmt: skip
+    compile_settings = {**config["controllers"]["nmpc"]["compile"], "enabled": True,
+                        "flags": flags, "cache": str(cache)}  # fmt: skip
     start = time.perf_counter()
     controller = controller_with(config, internal, models, compile=compile_settings)
     assert controller.rescue is not None  # built on first use: build its library now
@@ -53,14 +63,26 @@ def same(a: dict[str, Any], b: dict[str, Any]) -> bool:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--flags", nargs=2, default=["-O1", "-O2"],
-                        help="two flag sets, each one quoted string")  # fmt: skip
+    parser.add_argument("--flags", action="append", metavar="=FLAGS",
+                        help="a flag set, as --flags=\"-O2 …\"; give it twice (default: "
+                        "--flags=-O1 --flags=-O2)")  # fmt: skip
     parser.add_argument("--internal", nargs="+", default=["ddm", "truth"])
     parser.add_argument("--eta", nargs="+", type=float, default=[0.0, 4.0])
-    parser.add_argument("--models", type=Path, default=Path("results/models/rep0"))
+    parser.add_argument("--models", type=Path, default=Path(paths.models_of(0)))
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--problems", type=int, help="replay only the lap's first N problems")
+    add_config(parser)
     args = parser.parse_args()
-    config = load_config()
+    if args.repeats < 1 or (args.problems is not None and args.problems < 1):
+        parser.error("--repeats and --problems: give at least 1")
+    args.flags = args.flags or ["-O1", "-O2"]
+    if len(args.flags) != 2:
+        parser.error(f"--flags: give two flag sets, not {len(args.flags)}")
+    config = study_config(args)
+    compiler = str(config["controllers"]["nmpc"]["compile"].get("compiler", "gcc"))
+    if shutil.which(compiler) is None:
+        raise CapeError(f"no C compiler {compiler!r} on the PATH: the flags cannot be compared; "
+                        "install one (apt-get install gcc)")  # fmt: skip
     flag_sets = [shlex.split(f) for f in args.flags]
     names = [" ".join(f) for f in flag_sets]
     with tempfile.TemporaryDirectory(prefix="cape-flags-") as tmp:
@@ -72,7 +94,7 @@ def main() -> None:
             print(f"\n{internal}: built in " + ", ".join(
                 f"{t:.1f} s ({n})" for n, (_, t) in zip(names, built, strict=True)))  # fmt: skip
             for eta in args.eta:
-                problems = record_lap(config, internal, eta, args.models)
+                problems = record_lap(config, internal, eta, args.models)[: args.problems]
                 for controller, _ in built:
                     replay(controller, problems[:20])  # warm up caches and the code
                 runs: list[list[dict[str, Any]]] = [[], []]
@@ -94,4 +116,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run(main))

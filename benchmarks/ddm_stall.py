@@ -25,28 +25,29 @@ stalled loss of the whole training at a fraction of its cost:
     python benchmarks/ddm_stall.py --early ddm ddm_tuned --seeds 12 \
         --overlay config/examples/ddm_tuned.yaml
 
-It reads the training set the workflow builds (`snakemake --cores 2 results/data/DYN-PP-ETHZ.npz`)
-and each folder's ``health.json`` if there is one (whether the training failed, and why).
+It reads the training set the workflow builds (`snakemake --cores 2 results/data/DYN-PP-ETHZ.npz`,
+``cape.layout.paths.dataset``; run it from the study's folder) and each folder's ``health.json``
+if there is one (whether the training failed, and why).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 import torch
+from _common import add_config, run, study_config  # a sibling module
 
-from cape.config import load_config, section
+from cape.config import section
+from cape.data.bayesrace import read_dataset
 from cape.errors import CapeError
-from cape.io import read_npz
+from cape.io import read_json
+from cape.layout import paths
 from cape.models.checkpoint import load_model
 from cape.models.training import TrainingData
 from cape.vehicle.params import GROUND_TRUTH
-
-REPO = Path(__file__).resolve().parents[1]
 
 
 def _blocks(model: torch.nn.Module) -> list[tuple[str, list[torch.nn.Parameter]]]:
@@ -65,6 +66,10 @@ def _blocks(model: torch.nn.Module) -> list[tuple[str, list[torch.nn.Parameter]]
 
 
 def diagnose(folder: Path, data: dict[str, np.ndarray], config: dict) -> None:
+    if not (folder / "model.pt").is_file():
+        raise CapeError(f"{folder}: no model.pt, so not a training folder; give one of "
+                        f"{paths.TRAINING.format(model='<model>', training_seed='<s>')} "
+                        "(`snakemake --cores 2` trains them)")  # fmt: skip
     model = load_model(folder)
     model.train(False)
     split = section(config, "data")["split"]
@@ -77,7 +82,8 @@ def diagnose(folder: Path, data: dict[str, np.ndarray], config: dict) -> None:
     loss = torch.mean((model(x) - y) ** 2)
     loss.backward()
     health = folder / "health.json"
-    said = json.loads(health.read_text()) if health.is_file() else {}
+    fix = f"delete it and rebuild it with `snakemake --cores 2 {health}`"
+    said = read_json(health, "a training's health record", fix) if health.is_file() else {}
     outcome = (
         "no health.json"
         if not said
@@ -163,72 +169,41 @@ def early(
     }
 
 
-def _merged(config: dict, overlay: Path | None) -> dict:
-    """``config`` with ``overlay`` merged over it as Snakemake's ``--configfile`` does."""
-    if overlay is None:
-        return config
-    import yaml
-
-    from cape.config import validate_config
-
-    def merge(base: dict, over: dict) -> dict:
-        out = dict(base)
-        for key, value in over.items():
-            both = isinstance(value, dict) and isinstance(out.get(key), dict)
-            out[key] = merge(out[key], value) if both else value
-        return out
-
-    try:
-        over = yaml.safe_load(overlay.read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise CapeError(f"--overlay {overlay}: unreadable ({type(exc).__name__})") from None
-    if not isinstance(over, dict):
-        raise CapeError(f"--overlay {overlay}: not a YAML mapping of config sections")
-    return validate_config(merge(config, over), str(overlay))
-
-
-def main(argv: list[str] | None = None) -> int:
+def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("folders", nargs="*", type=Path, help="training folders (model.pt)")
     parser.add_argument("--early", nargs="+", metavar="MODEL", help="retrain these entries' start")
     parser.add_argument("--seeds", type=int, default=6, help="with --early: seeds per model")
     parser.add_argument("--epochs", type=int, default=2, help="with --early: epochs per seed")
-    parser.add_argument("--overlay", type=Path, help="a config overlay merged over --config")
-    parser.add_argument("--data", type=Path, default=REPO / "results/data/DYN-PP-ETHZ.npz")
-    parser.add_argument("--config", type=Path, default=REPO / "config/config.yaml")
-    args = parser.parse_args(argv)
+    parser.add_argument(
+        "--data", type=Path, help="the training set (default: the workflow's, of data.train_track)"
+    )
+    add_config(parser)
+    args = parser.parse_args()
     if not args.folders and not args.early:
         parser.error("give training folders, or --early MODEL …")
     if args.seeds < 1 or args.epochs < 1:
         parser.error("--seeds and --epochs: give at least 1")
     torch.set_num_threads(1)
-    try:
-        config = _merged(load_config(args.config), args.overlay)
-        if not args.data.is_file():
-            raise CapeError(
-                f"{args.data}: missing; build it with `snakemake --cores 2 {args.data}`"
-            )
-        data = read_npz(args.data)
-        for folder in args.folders:
-            diagnose(folder, data, config)
-        first = int(section(config, "training")["seed"])
-        rows = []
-        for name in args.early or []:
-            spec = section(config, "models").get(name)
-            if spec is None:
-                raise CapeError(f"--early {name}: no such model entry (give --overlay?)")
-            for seed in range(first, first + args.seeds):
-                rows.append(early(name, spec, data, config, seed, args.epochs))
-                print(" | ".join(str(v) for v in rows[-1].values()), flush=True)
-        for name in args.early or []:
-            mine = [r for r in rows if r["model"] == name]
-            print(f"{name}: dead after {args.epochs} epochs in "
-                  f"{sum(bool(r['dead']) for r in mine)} of {len(mine)} seeds")  # fmt: skip
-    except CapeError as exc:
-        print(f"ddm_stall.py: {exc}", file=sys.stderr)
-        return 2
-    return 0
+    config = study_config(args)
+    path = args.data or Path(paths.dataset(section(config, "data")["train_track"]))
+    data = read_dataset(path)
+    for folder in args.folders:
+        diagnose(folder, data, config)
+    first = int(section(config, "training")["seed"])
+    rows = []
+    for name in args.early or []:
+        spec = section(config, "models").get(name)
+        if spec is None:
+            raise CapeError(f"--early {name}: no such model entry (give --configfile?)")
+        for seed in range(first, first + args.seeds):
+            rows.append(early(name, spec, data, config, seed, args.epochs))
+            print(" | ".join(str(v) for v in rows[-1].values()), flush=True)
+    for name in args.early or []:
+        mine = [r for r in rows if r["model"] == name]
+        print(f"{name}: dead after {args.epochs} epochs in "
+              f"{sum(bool(r['dead']) for r in mine)} of {len(mine)} seeds")  # fmt: skip
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run(main))

@@ -11,51 +11,133 @@ What no file records (the interpreter before cape's first import, Snakemake's ow
 is left out and said so. A host reference (the same PID and RISE laps in every study) is
 printed beside the total, as this machine's speed drifts between studies.
 
-    python benchmarks/draw_cost.py [--results results] [--replicate 1] [--models dpm ddm epm]
+    python benchmarks/draw_cost.py [--replicate 1] [--models dpm ddm epm]
+                                   [--configfile config/smoke.yaml]
+
+Run it from the study's folder, with the config the study was built with (``--configfile``):
+every file is looked for where the workflow writes it (``cape.layout.paths``), and the runs of
+the draw are the config's grid (``cape.study.grid``). A draw's trainings are those its
+``meta.json`` says were consulted for it and not for the draw before it. A study that lacks a
+part (a training's or a solver's benchmark file, a draw, a run not computed yet) is told what
+it lacks and given no total: a missing part is never counted as zero. A damaged file (an empty
+benchmark TSV, a truncated timing.json, a run folder without its metrics.json) ends the script
+with one line naming the file and the fix, exit status 2.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
-import json
+import sys
 from collections import defaultdict
 from pathlib import Path
+from typing import Any
 
+from _common import add_config, listed, run, study_config  # a sibling module
+
+from cape.errors import CapeError
+from cape.io import read_benchmark, read_json
+from cape.layout import paths
+from cape.layout.names import TRUTH
+from cape.layout.record import read_metrics, read_timing
 from cape.layout.runs import RunId
 
 
-def benchmark_cpu(folder: Path) -> dict[str, float]:
-    """``cpu_time`` of each benchmark file under ``folder`` (file stem → s)."""
+def cpu_of(path: Path) -> float:
+    """``cpu_time`` of a Snakemake benchmark file (its first row), else its wall ``s``."""
+    row = read_benchmark(path).iloc[0]
+    value = row.get("cpu_time")
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        value = float("nan")
+    return value if value == value else float(row["s"])  # NaN: Snakemake could not measure
+
+
+def draw_trainings(model: str, replicate: int, lacking: list[str]) -> list[int] | None:
+    """The training seeds of ``model`` that draw ``replicate`` needed and the draw before it
+    did not (its ``meta.json``'s ``draw.trainings``), or None (said in ``lacking``)."""
+
+    def consulted(r: int) -> set[int] | None:
+        path = Path(paths.model_dir(model, r), "meta.json")
+        if not path.is_file():
+            lacking.append(f"{path} (draw {r} of {model}: `snakemake --cores 2 {path}`)")
+            return None
+        meta = read_json(path, "a model's meta.json", f"delete it and rebuild it with "
+                         f"`snakemake --cores 2 {path}`")  # fmt: skip
+        try:
+            return {int(t["seed"]) for t in meta["draw"]["trainings"]}
+        except (KeyError, TypeError, ValueError):
+            raise CapeError(
+                f"{path}: no `draw.trainings` (the trainings consulted for the "
+                f"draw); rebuild it with `snakemake --cores 2 {path}`"
+            ) from None
+
+    mine = consulted(replicate)
+    before = consulted(replicate - 1) if replicate > 0 else set()
+    if mine is None or before is None:
+        return None
+    return sorted(mine - before)
+
+
+def benchmark_cpu(files: list[Path], lacking: list[str]) -> dict[str, float]:
+    """CPU seconds of each benchmark file (path → s); a missing one goes to ``lacking``."""
     out = {}
-    for path in sorted(folder.rglob("*.tsv")):
-        with path.open() as handle:
-            row = next(csv.DictReader(handle, delimiter="\t"))
-        value = row.get("cpu_time") or row.get("s")
-        out[str(path.relative_to(folder).with_suffix(""))] = float(value or 0.0)
+    for path in files:
+        if path.is_file():
+            out[str(path)] = cpu_of(path)
+        else:
+            lacking.append(f"{path} (its rule has not run here, or ran without its benchmark)")
     return out
 
 
-def draw_runs(results: Path, replicate: int, models: set[str] | None = None) -> list[dict]:
-    """The phases of every run of ``replicate`` computed with a trained network (of
-    ``models`` only, when given: a run whose plant or internal model is another is left out)."""
-    rows = []
-    for path in sorted((results / "runs").glob(f"*/rep{replicate}/*/*/*/*/*/timing.json")):
-        run = RunId.parse(path)
-        names = {n.removesuffix("-fixed") for n in (run.plant, run.internal)} - {"truth"}
+def solver_files(replicate: int, models: set[str] | None) -> list[Path]:
+    """The benchmark file of every solver build of the draw (its solver record exists)."""
+    pattern = paths.solver("*", "*", replicate)
+    files = []
+    for record in sorted(Path().glob(pattern)):
+        controller, internal = record.parent.name, record.stem
+        if models is not None and internal.removesuffix("-fixed") not in models:
+            continue
+        files.append(Path(paths.benchmark("solvers", paths.REP.format(replicate=replicate),
+                                          controller, f"{internal}.tsv")))  # fmt: skip
+    return files
+
+
+def draw_runs(
+    config: dict[str, Any], replicate: int, models: set[str] | None, lacking: list[str]
+) -> list[dict]:
+    """The phases of every run of the config's grid that draw ``replicate`` computes with a
+    trained network (of ``models`` only, when given); a run not computed goes to ``lacking``."""
+    from cape.study.grid import study_grid
+
+    rows, absent = [], []
+    grid = study_grid(config)
+    for run_id in dict.fromkeys(grid.values()):  # each computed run once
+        if run_id.replicate != replicate or not run_id.uses_trained_model():
+            continue
+        names = {n.removesuffix("-fixed") for n in (run_id.plant, run_id.internal)} - {TRUTH}
         if models is not None and not names <= models:
             continue
-        metrics = json.loads((path.parent / "metrics.json").read_text())
-        timing = json.loads(path.read_text())
-        job = timing.get("job_s")
-        if not metrics.get("models") or job is None:
+        folder = run_id.folder()
+        if not folder.is_dir():
+            absent.append(str(folder))
             continue
+        timing = read_timing(folder)
+        metrics = read_metrics(folder / "metrics.json")
+        job = timing.get("job_s")
+        if not isinstance(job, dict):
+            raise CapeError(
+                f"{folder / 'timing.json'}: no `job_s` (the job's phases: a run of "
+                f"an older version); delete {folder} and rerun snakemake"
+            )
         rescues = timing.get("rescues") or {}
-        rows.append({**job, "study": run.study, "law": run.controller,
-                     "internal": run.internal, "eta": float(run.eta),
+        rows.append({**job, "study": run_id.study, "law": run_id.controller,
+                     "internal": run_id.internal, "eta": float(run_id.eta),
                      "parts": timing.get("controller_s") or {},
                      "rescues": int(metrics.get("rescues") or 0),
                      "rescued": rescues.get("succeeded")})  # fmt: skip
+    if absent:
+        lacking.append(f"{len(absent)} runs not computed ({listed(absent, 3)})")
     return rows
 
 
@@ -64,18 +146,17 @@ def fixed_part(job: dict) -> float:
     return job["startup"] + job["config"] + job["build"] + job["write"]
 
 
-def host_reference(results: Path) -> str:
+def host_reference() -> str:
     """The same work in every study, a gauge of the machine's speed while it ran: replicate 0's
     ground-truth plant driven by PID and RISE (no network, no solver; unchanged by the speed
     work), per step of their laps and per job's fixed part. Two studies' draw costs compare
     after scaling by it; the host's speed drifts by tens of per cent between hours."""
     lap = steps = fixed = jobs = 0.0
     for law in ("pid", "rise"):
-        for path in (results / "runs" / "truth" / "rep0" / "truth" / "truth" / law).glob(
-            "*/*/timing.json"
-        ):
-            job = json.loads(path.read_text()).get("job_s")
-            if job is None:
+        pattern = RunId("truth", TRUTH, TRUTH, law, "*", "*", 0).folder()  # type: ignore[arg-type]
+        for folder in sorted(Path().glob(str(pattern))):
+            job = read_timing(folder).get("job_s")
+            if not isinstance(job, dict):
                 continue
             lap, steps, jobs = lap + job["lap"], steps + job["steps"], jobs + 1
             fixed += fixed_part(job)
@@ -138,27 +219,31 @@ def rescue_table(runs: list[dict]) -> None:
               f" {1e3 * c['s'] / c['tried']:7.1f} ms")  # fmt: skip
 
 
-def main() -> None:
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--results", type=Path, default=Path("results"))
     parser.add_argument("--replicate", type=int, default=1, help="the draw to cost (not 0)")
     parser.add_argument("--budget", type=float, default=2400.0, help="s of CPU a draw may cost")
     parser.add_argument("--models", nargs="+", help="these models' draw only (default: all)")
+    add_config(parser)
     args = parser.parse_args()
-    rep = f"rep{args.replicate}"
-    bench = args.results / "benchmarks"
+    if args.replicate < 0:
+        parser.error("--replicate: give a draw, 0 or more")
+    config = study_config(args)
+    trainable = [m for m in config["models"]]
+    unknown = [m for m in args.models or [] if m not in trainable]
+    if unknown:
+        raise CapeError(f"--models {' '.join(unknown)}: not in the config's `models` "
+                        f"({', '.join(trainable)})")  # fmt: skip
     models = set(args.models) if args.models else None
-
-    def kept(key: str) -> bool:
-        return models is None or key.split("/")[-1].removesuffix("-fixed") in models
-
-    training = {k: v for k, v in benchmark_cpu(bench / "train").items()
-                if k.startswith(rep) and kept(k)}  # fmt: skip
-    solvers = {k: v for k, v in benchmark_cpu(bench / "solvers").items()
-               if f"/{rep}/" in f"/{k}" and kept(k)}  # fmt: skip
-    runs = draw_runs(args.results, args.replicate, models)
-    if not runs:
-        raise SystemExit(f"no run of replicate {args.replicate} under {args.results / 'runs'}")
+    lacking: list[str] = []
+    training_files = []
+    for model in args.models or trainable:
+        seeds = draw_trainings(model, args.replicate, lacking)
+        for seed in seeds or []:
+            training_files.append(Path(paths.benchmark("train", model, f"seed{seed}.tsv")))
+    training = benchmark_cpu(training_files, lacking)
+    solvers = benchmark_cpu(solver_files(args.replicate, models), lacking)
+    runs = draw_runs(config, args.replicate, models, lacking)
     parts: dict[str, float] = defaultdict(float)
     by_cell: dict[tuple[str, str], dict[str, float]] = defaultdict(lambda: defaultdict(float))
     for r in runs:
@@ -170,27 +255,39 @@ def main() -> None:
             by_cell[(r["study"], r["law"])][name] += value
         by_cell[(r["study"], r["law"])]["jobs"] += 1
         by_cell[(r["study"], r["law"])]["rescues"] += r["rescues"]
-    total = sum(training.values()) + sum(solvers.values()) + sum(parts.values())
     print(f"replicate {args.replicate}: {len(runs)} runs with its networks")
-    print(f"  training  {sum(training.values()):8.0f} s  "
-          + ", ".join(f"{k.split('/')[-1]} {v:.0f}" for k, v in training.items()))  # fmt: skip
+    counted = f"{len(training)} training" + ("" if len(training) == 1 else "s")
+    print(f"  training  {sum(training.values()):8.0f} s  ({counted}) "
+          + ", ".join(f"{Path(k).parent.name}/{Path(k).stem} {v:.0f}"
+                      for k, v in training.items()))  # fmt: skip
     print(f"  solvers   {sum(solvers.values()):8.0f} s  ({len(solvers)} builds)")
     for name, value in parts.items():
         print(f"  {name:15} {value:8.0f} s")
-    verdict = "within" if total <= args.budget else "over"
-    print(
-        f"  total     {total:8.0f} s of CPU ({verdict} the {args.budget:.0f} s budget); not "
-        "counted: interpreter start-up before cape's imports, Snakemake's work per job"
-    )
-    print(f"  {host_reference(args.results)}")
-    print(f"\n{'study':8} {'controller':10} {'jobs':>5} {'fixed':>7} {'plant Φ':>8} "
-          f"{'step':>8} {'loop':>6} {'rescues':>8}")  # fmt: skip
+    if lacking:
+        print(
+            f"  total     not given: this study lacks {len(lacking)} part(s) of the draw, "
+            "which would count as 0 s:"
+        )
+        for item in lacking:
+            print(f"    - {item}")
+    else:
+        total = sum(training.values()) + sum(solvers.values()) + sum(parts.values())
+        verdict = "within" if total <= args.budget else "over"
+        print(
+            f"  total     {total:8.0f} s of CPU ({verdict} the {args.budget:.0f} s budget); not "
+            "counted: interpreter start-up before cape's imports, Snakemake's work per job"
+        )
+    print(f"  {host_reference()}")
+    if by_cell:
+        print(f"\n{'study':8} {'controller':10} {'jobs':>5} {'fixed':>7} {'plant Φ':>8} "
+              f"{'step':>8} {'loop':>6} {'rescues':>8}")  # fmt: skip
     for (study, controller), c in sorted(by_cell.items()):
         print(f"{study:8} {controller:10} {c['jobs']:5.0f} {c['fixed']:7.0f} {c['plant Φ']:8.0f} "
               f"{c['controller step']:8.0f} {c['loop']:6.0f} {c['rescues']:8.0f}")  # fmt: skip
     step_breakdown(runs)
     rescue_table(runs)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run(main))

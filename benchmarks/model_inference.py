@@ -9,10 +9,12 @@ rollout calls one path only, so each path's weights are in cache as they are the
 median and p90 per call, and the speed-up over the previous default. Then the largest change
 of Φ over every ETHZMobil window, compiled against the previous default and against the
 PyTorch graph: absolute, and relative to each component's largest magnitude. Uses the
-trained models under results/models/rep0/ when present (else freshly initialised ones: the timing
-does not depend on the weights).
+trained models of draw 0 (``results/models/rep0/``, ``cape.layout.paths.model_dir``) when
+present (else freshly initialised ones: the timing does not depend on the weights); run it from
+the study's folder.
 
     python benchmarks/model_inference.py [--rounds 60] [--block 25] [--cache DIR]
+                                         [--models dpm ddm epm] [--configfile FILE]
 
 ``--cache``: where the compiled libraries are kept (default ``rollout.compile.cache``); an
 empty folder times a cold compilation.
@@ -22,16 +24,20 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import torch
+from _common import add_config, run, study_config  # a sibling module
 
 from cape.compiled import compiled_functions
-from cape.config import load_config
+from cape.data.bayesrace import read_dataset
 from cape.data.windows import make_windows
+from cape.errors import CapeError
+from cape.layout import paths as layout
 from cape.models.checkpoint import load_model
 from cape.models.network import NumpyNetwork
 from cape.models.training import build_model
@@ -64,20 +70,26 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=60)
     parser.add_argument("--block", type=int, default=25)
     parser.add_argument("--cache", help="compiled libraries (default: rollout.compile.cache)")
+    parser.add_argument("--models", nargs="+", help="these models only (default: every one)")
+    add_config(parser)
     args = parser.parse_args()
+    if args.rounds < 1 or args.block < 1:
+        parser.error("--rounds and --block: give at least 1")
     torch.set_num_threads(1)
-    config = load_config()
+    config = study_config(args)
+    unknown = [m for m in args.models or [] if m not in config["models"]]
+    if unknown:
+        raise CapeError(f"--models {' '.join(unknown)}: not in the config's `models` "
+                        f"({', '.join(config['models'])})")  # fmt: skip
     settings = dict(config["rollout"]["compile"], enabled=True)
     if args.cache:
         settings["cache"] = args.cache
-    data_path = Path("results/data/DYN-PP-ETHZMobil.npz")
-    if not data_path.is_file():
-        raise SystemExit(f"{data_path} missing: run `snakemake --cores 2 {data_path}` first")
-    with np.load(data_path) as npz:
-        data = {k: npz[k] for k in npz.files}
+    data = read_dataset(layout.dataset(config["data"]["test_track"]))
     rows = []
     for name, spec in config["models"].items():
-        folder = Path("results/models/rep0") / name
+        if args.models and name not in args.models:
+            continue
+        folder = Path(layout.model_dir(name, 0))
         if (folder / "model.pt").is_file():
             model, source = load_model(folder, name), "trained"
         else:
@@ -90,7 +102,10 @@ def main() -> None:
         compiled.phi(windows[0])  # compiles, or loads the cached library
         build = time.perf_counter() - start
         if compiled.library is None:
-            raise SystemExit("no compiler: the compiled paths cannot be timed")
+            raise CapeError(
+                f"no C compiler ({settings.get('compiler', 'gcc')}): the compiled "
+                "paths cannot be timed; install one (apt-get install gcc)"
+            )
         uncompiled = NumpyNetwork(arrays).uncompiled_phi()
         network = NumpyNetwork(arrays)
         digest = hashlib.sha256(b"benchmark front")
@@ -143,4 +158,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run(main))

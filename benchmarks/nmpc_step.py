@@ -18,25 +18,29 @@ max), failed solves, and the largest first-input difference against the referenc
 share of problems within 1e-3 and where in the lap the others are.
 
     python benchmarks/nmpc_step.py [--internal epm truth] [--eta 0 4] [--stride 10]
-                                    [--repeats 3] [--json PATH]
+                                    [--repeats 3] [--problems N] [--json PATH]
+                                    [--configfile config/smoke.yaml]
 
-The internal models are trained models from results/models/rep0/ (or ``truth``, which needs none).
+The internal models are trained models of draw 0 (``results/models/rep0/``, the workflow's
+``cape.layout.paths.models_of(0)``; or ``truth``, which needs none). ``--problems N`` replays
+only the lap's first N problems (a quick check that every solver runs).
 """
 
 from __future__ import annotations
 
 import argparse
 import copy
-import json
+import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import casadi as ca
 import numpy as np
+from _common import add_config, json_output, run, study_config  # a sibling module
 
 from cape.closedloop.setup import build_run
-from cape.config import load_config
+from cape.layout import paths
 
 Problem = tuple[np.ndarray, np.ndarray, tuple[float, float]]
 
@@ -89,13 +93,15 @@ def replay(controller: Any, problems: list[Problem]) -> dict[str, np.ndarray]:
 
 def rebuild_every_step(controller: Any, problems: list[Problem], opts: dict) -> np.ndarray:
     """The reference implementations' pattern: a new NLP and IPOPT instance per step, cold.
-    (``controller`` has the multiple-shooting NLP as its rescue solver.)"""
+    ``controller``: one whose solver is IPOPT on the multiple-shooting NLP (``solver:
+    ipopt``), whose bounds and cold start are this NLP's. (Not the default's rescue: that is
+    Fatrop's stage-wise NLP, another decision vector, since ``sqp.rescue: fatrop``.)"""
+    backend = controller.solver  # the multiple-shooting NLP's bounds and cold start
     times = np.empty(len(problems))
     for i, (x0, params, throttle) in enumerate(problems):
         start = time.perf_counter()
         solver = ca.nlpsol("nmpc", "ipopt", controller.ocp.nlp(), opts)
         lbg, ubg = controller.ocp.nlp_bounds()
-        backend = controller.rescue  # the multiple-shooting NLP's bounds and cold start
         cold = backend.cold_start(x0, params[controller.ocp.layout["u_prev"]])
         _, lbx, ubx = backend._prepare(cold, x0, throttle, True)
         solver(x0=cold, p=params, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
@@ -138,6 +144,8 @@ def benchmark_lap(
     config: dict[str, Any], internal: str, eta: float, args: argparse.Namespace
 ) -> dict[str, Any]:
     problems = record_lap(config, internal, eta, args.models)
+    if args.problems:
+        problems = problems[: args.problems]
     nmpc = config["controllers"]["nmpc"]
     tight = {"max_iter": 1000, "tol": 1e-8}
     reference = replay(controller_with(config, internal, args.models, solver="ipopt", ipopt=tight),
@@ -147,11 +155,12 @@ def benchmark_lap(
     replays = [replay(default, problems) for _ in range(max(1, args.repeats))]
     merged = {k: np.concatenate([r[k] for r in replays]) for k in ("ms", "iterations", "ok")}
     merged["first"] = replays[0]["first"]
-    ipopt = replay(controller_with(config, internal, args.models, solver="ipopt"), problems)
+    ipopt_controller = controller_with(config, internal, args.models, solver="ipopt")
+    ipopt = replay(ipopt_controller, problems)
     old = replay(controller_with(config, internal, args.models, solver="sqpmethod"), problems)
     opts = {"ipopt.print_level": 0, "ipopt.sb": "yes", "print_time": False,
             "ipopt.max_iter": int(nmpc["ipopt"]["max_iter"])}  # fmt: skip
-    rebuilt = rebuild_every_step(default, problems[:: args.stride], opts)
+    rebuilt = rebuild_every_step(ipopt_controller, problems[:: args.stride], opts)
     a = {"ms": rebuilt, "iterations": np.zeros(rebuilt.size), "ok": np.ones(rebuilt.size, bool)}
     print(
         f"{'solver':34} {'median':>8} {'p90':>8} {'p99':>8} {'max':>8} {'it.med':>5} "
@@ -194,18 +203,22 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--internal", nargs="+", default=["epm", "truth"])
     parser.add_argument("--eta", nargs="+", type=float, default=[0.0, 4.0])
-    parser.add_argument("--models", type=Path, default=Path("results/models/rep0"))
+    parser.add_argument("--models", type=Path, default=Path(paths.models_of(0)),
+                        help="the draw's models folder (default: draw 0's)")  # fmt: skip
     parser.add_argument("--stride", type=int, default=10, help="(a) times every n-th problem")
     parser.add_argument("--repeats", type=int, default=3, help="replays of each lap (default)")
+    parser.add_argument("--problems", type=int, help="replay only the lap's first N problems")
     parser.add_argument("--json", type=Path, help="also write the figures here")
+    add_config(parser)
     args = parser.parse_args()
-    config = load_config()
-    results = [benchmark_lap(config, internal, eta, args) for internal in args.internal
-               for eta in args.eta]  # fmt: skip
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(results, indent=2) + "\n")
+    if args.stride < 1 or args.repeats < 1 or (args.problems is not None and args.problems < 1):
+        parser.error("--stride, --repeats and --problems: give at least 1")
+    with json_output(args.json, "nmpc_step.py") as write:
+        config = study_config(args)
+        results = [benchmark_lap(config, internal, eta, args) for internal in args.internal
+                   for eta in args.eta]  # fmt: skip
+        write(results)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run(main))

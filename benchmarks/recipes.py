@@ -10,9 +10,12 @@ DDM's recipe and the tuned one of ``config/examples/ddm_tuned.yaml`` over six se
 
     snakemake --cores 2 --configfile config/config.yaml config/examples/ddm_tuned.yaml \\
         results/trainings/{ddm,ddm_tuned}/seed{0,1,2,3,4,5}/health.json
-    python benchmarks/recipes.py ddm ddm_tuned --seeds 6
+    python benchmarks/recipes.py ddm ddm_tuned --seeds 6 --configfile config/examples/ddm_tuned.yaml
 
-A training or record that is missing is named, never counted as a pass, a failure or zero CPU.
+Run it from the study's folder: the files are looked for where the workflow writes them
+(``cape.layout.paths``). A training or record that is missing is named, never counted as a
+pass, a failure or zero CPU; a damaged one (an empty benchmark TSV) ends the script with one
+line naming it and the fix, exit status 2.
 """
 
 from __future__ import annotations
@@ -24,25 +27,23 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from _common import add_config, run, study_config  # a sibling module
 
-from cape.config import load_config, section
+from cape.config import section
+from cape.data.bayesrace import read_dataset
 from cape.data.windows import make_windows
 from cape.errors import CapeError
-from cape.io import read_npz
+from cape.io import read_benchmark
+from cape.layout import paths
 from cape.models.draws import read_outcome, reliability
-
-REPO = Path(__file__).resolve().parents[1]
 
 
 def cpu_seconds(tsv: Path) -> float:
     """User + system CPU of one training from Snakemake's benchmark file (``cpu_time``)."""
-    import pandas as pd
-
-    try:
-        table = pd.read_csv(tsv, sep="\t")
-        return float(table["cpu_time"].iloc[0])
-    except (OSError, KeyError, IndexError, ValueError, pd.errors.ParserError) as exc:
-        raise CapeError(f"{tsv}: no CPU time ({type(exc).__name__}); rerun the training") from None
+    value = float(read_benchmark(tsv)["cpu_time"].iloc[0])
+    if not math.isfinite(value):
+        raise CapeError(f"{tsv}: no CPU time recorded (cpu_time {value}); rerun the training")
+    return value
 
 
 def test_rmse_omega(folder: Path, test: dict[str, np.ndarray]) -> float:
@@ -54,20 +55,18 @@ def test_rmse_omega(folder: Path, test: dict[str, np.ndarray]) -> float:
     return float(one_step_rmse(model, make_windows(test, model.history))["omega"])
 
 
-def summarise(
-    results: Path, model: str, seeds: int, first: int, test: dict[str, np.ndarray]
-) -> dict[str, str]:
+def summarise(model: str, seeds: int, first: int, test: dict[str, np.ndarray]) -> dict[str, str]:
     """One model's row: its trainings with seeds ``first`` … ``first + seeds − 1``."""
     outcomes, val, mobil, cpu, missing = [], [], [], [], []
     for seed in range(first, first + seeds):
-        folder = results / "trainings" / model / f"seed{seed}"
+        folder = Path(paths.training_dir(model, seed))
         health = folder / "health.json"
         if not health.is_file():
             missing.append(f"seed {seed}")
             continue
         outcome = read_outcome(health)
         outcomes.append(outcome)
-        tsv = results / "benchmarks" / "train" / model / f"seed{seed}.tsv"
+        tsv = Path(paths.benchmark("train", model, f"seed{seed}.tsv"))
         if tsv.is_file():
             cpu.append(cpu_seconds(tsv))
         else:
@@ -95,33 +94,26 @@ def summarise(
     }
 
 
-def main(argv: list[str] | None = None) -> int:
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("models", nargs="+", help="config names of the models (recipes)")
     parser.add_argument("--seeds", type=int, default=6, help="trainings per model (default 6)")
-    parser.add_argument("--config", type=Path, default=REPO / "config/config.yaml")
-    parser.add_argument("--results", type=Path, default=REPO / "results", help="results folder")
-    args = parser.parse_args(argv)
+    add_config(parser)
+    args = parser.parse_args()
     if args.seeds < 1:
         parser.error("--seeds: give at least 1")
-    try:
-        config = load_config(args.config)
-        data = section(config, "data")
-        first = int(section(config, "training")["seed"])
-        path = args.results / "data" / f"DYN-PP-{data['test_track']}.npz"
-        if not path.is_file():
-            raise CapeError(f"{path}: missing; build it with `snakemake --cores 2 {path}`")
-        test = read_npz(path)
-        unknown = [m for m in args.models if not (args.results / "trainings" / m).is_dir()]
-        if unknown:
-            raise CapeError(
-                f"{', '.join(unknown)}: no trainings under {args.results / 'trainings'}; train "
-                "them first (the snakemake command in this script's docstring)"
-            )
-        rows = [summarise(args.results, m, args.seeds, first, test) for m in args.models]
-    except CapeError as exc:
-        print(f"recipes.py: {exc}", file=sys.stderr)
-        return 2
+    config = study_config(args)
+    data = section(config, "data")
+    first = int(section(config, "training")["seed"])
+    test = read_dataset(paths.dataset(data["test_track"]))
+    trainings = Path(paths.training_dir("<model>", 0)).parent.parent
+    unknown = [m for m in args.models if not Path(paths.training_dir(m, first)).parent.is_dir()]
+    if unknown:
+        raise CapeError(
+            f"{', '.join(unknown)}: no trainings under {trainings}; train them first (the "
+            "snakemake command in this script's docstring)"
+        )
+    rows = [summarise(m, args.seeds, first, test) for m in args.models]
     columns = list(rows[0])
     print("| " + " | ".join(columns) + " |")
     print("|" + "---|" * len(columns))
@@ -131,4 +123,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run(main))

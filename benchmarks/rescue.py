@@ -11,23 +11,28 @@ solves it and the lap goes on as in the study. Prints, per model and η: rescues
 per variant the share solved, the median and p90 time per rescue, the median iterations, and
 how many of its solutions agree with the configured rescue's first input (within 1e-3).
 
-    python benchmarks/rescue.py [--models results/models/rep0] [--model dpm ddm epm]
-                                [--controller nmpc] [--eta 1 3 5] [--seeds 0 1] [--caps 30 15 8]
+    python benchmarks/rescue.py [--replicate 0] [--model dpm ddm epm] [--controller nmpc]
+                                [--eta 1 3 5] [--seeds 0 1] [--caps 30 15 8] [--json PATH]
+                                [--configfile config/smoke.yaml]
+
+Run it from the study's folder: the models are the draw's (``cape.layout.paths.models_of``).
 """
 
 from __future__ import annotations
 
 import argparse
 import copy
-import json
+import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from _common import add_config, json_output, run, study_config  # a sibling module
 
 from cape.closedloop.setup import ModelFolders, build_run
-from cape.config import load_config
+from cape.errors import CapeError
+from cape.layout import paths
 
 
 def capped(controller: Any, cap: int) -> Any:
@@ -111,7 +116,7 @@ def one_lap(
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--models", type=Path, default=Path("results/models/rep0"))
+    parser.add_argument("--replicate", type=int, default=0, help="the models' draw (default 0)")
     parser.add_argument("--model", nargs="+", default=["dpm", "ddm", "epm"])
     parser.add_argument("--plant", default="learned", choices=["learned", "truth"])
     parser.add_argument("--controller", default="nmpc")
@@ -121,10 +126,20 @@ def main() -> None:
     parser.add_argument("--sqp-iterations", type=int, default=100,
                         help="iterations of the second SQP, warm (from the failed SQP's iterate) "
                         "and cold (the previous input held)")  # fmt: skip
-    parser.add_argument("--config", default="config/config.yaml")
     parser.add_argument("--json", type=Path, help="write the per-rescue records here")
+    add_config(parser)
     args = parser.parse_args()
-    config = load_config(args.config)
+    with json_output(args.json, "rescue.py") as write:
+        write(rescues(args))
+
+
+def rescues(args: argparse.Namespace) -> dict[str, Any]:
+    config = study_config(args)
+    nmpc = config["controllers"].get(args.controller)
+    if nmpc is None or "sqp" not in nmpc:
+        raise CapeError(f"--controller {args.controller}: not an NMPC of the config's "
+                        f"`controllers` ({', '.join(config['controllers'])})")  # fmt: skip
+    models = Path(paths.models_of(args.replicate))
     # the lap is driven with IPOPT's rescue at its configured cap, the reference of the others
     config["controllers"][args.controller]["sqp"]["rescue"] = "ipopt"
     configured = int(config["controllers"][args.controller]["ipopt"]["max_iter"])
@@ -148,7 +163,7 @@ def main() -> None:
                     args.controller,
                     eta,
                     seed,
-                    args.models,
+                    models,
                     caps,
                     args.sqp_iterations,
                 )
@@ -175,9 +190,8 @@ def main() -> None:
                 {str(cap): {"ok": bool(r[cap][0]), "ms": r[cap][1], "iterations": r[cap][2]}
                  for cap in order} for r in rows
             ]  # fmt: skip
-    if args.json:
-        args.json.write_text(json.dumps(dump, indent=1))
+    return dump
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run(main))

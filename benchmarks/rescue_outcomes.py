@@ -4,24 +4,33 @@ fallback instead), and compares each run's outcome with the study's: lap or not,
 lap time, and the mean |e_y|; prints the counts per study, internal model and controller, the
 outcomes that changed, and the CPU of the rescue before and after.
 
-Run from the study's folder (its results/ and config) with two workers:
+Run from the study's folder (its results/ and config, and ``--configfile`` the overlays it
+was built with) with two workers:
 
     python benchmarks/rescue_outcomes.py --rescue null [--study truth] [--internal truth]
-                                         [--replicate 0] [--limit 40] [--jobs 2]
+                                         [--replicate 0] [--limit 40] [--jobs 2] [--json PATH]
+
+The runs are the replicated study's table (``results/replicates/study/runs.parquet``,
+``cape.layout.paths.study_runs``), each run's models the draw's (``paths.models_of``).
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import json
+import sys
 import time
 from collections import Counter, defaultdict
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-import pandas as pd
-import yaml
+from _common import add_config, json_output, run, study_config  # a sibling module
+
+from cape.errors import CapeError
+from cape.layout import paths
+from cape.layout.record import read_timing
 
 NMPCS = ("nmpc", "anmpc", "rnmpc")
 
@@ -34,11 +43,8 @@ def rescue_setting(text: str) -> Any:
 def rerun(task: dict[str, Any]) -> dict[str, Any]:
     """One run of the study again, with the controller's rescue set to ``task['rescue']``."""
     from cape.closedloop.setup import ModelFolders, build_run
-    from cape.config import load_config
 
-    config = load_config(task["config"])
-    for overlay in task["overlays"]:
-        config = _merge(config, yaml.safe_load(Path(overlay).read_text()))
+    config = copy.deepcopy(task["config"])
     config["controllers"][task["controller"]]["sqp"]["rescue"] = task["rescue"]
     for key, value in task["sqp"].items():
         config["controllers"][task["controller"]]["sqp"][key] = value
@@ -50,7 +56,7 @@ def rerun(task: dict[str, Any]) -> dict[str, Any]:
         config["controllers"][task["controller"]]["fatrop"]["options"] = task["fatrop"]
     run = build_run(
         config, task["plant"], task["controller"], task["eta"], task["seed"], task["internal"],
-        ModelFolders(Path(f"results/models/rep{task['replicate']}")), None,
+        ModelFolders(Path(paths.models_of(task["replicate"]))), None,
     )  # fmt: skip
     solves: list[tuple[bool, int, float]] = []  # every rescue: converged, iterations, ms
     rescue = run.controller.rescue if task["rescue"] in ("ipopt", "fatrop") else None
@@ -75,12 +81,32 @@ def rerun(task: dict[str, Any]) -> dict[str, Any]:
             "new_succeeded": result.rescues_succeeded, "solves": solves}  # fmt: skip
 
 
-def _merge(base: dict, over: dict) -> dict:
-    out = dict(base)
-    for key, value in over.items():
-        out[key] = _merge(out[key], value) if isinstance(value, dict) and isinstance(
-            out.get(key), dict) else value  # fmt: skip
-    return out
+def read_runs(path: Path) -> Any:
+    """The study's runs table, or ``CapeError`` naming the file and the fix."""
+    import pandas as pd
+
+    fix = f"build it with `snakemake --cores 2 {path}` (the `replicates` target builds it)"
+    if not path.is_file():
+        raise CapeError(f"{path}: missing; {fix}")
+    try:
+        runs = pd.read_parquet(path)
+    except (OSError, ValueError) as exc:
+        raise CapeError(f"{path}: not a readable runs table ({type(exc).__name__}); delete it "
+                        f"and {fix}") from None  # fmt: skip
+    needed = ("folder", "study", "plant", "internal", "controller", "eta", "seed", "replicate",
+              "success", "failure", "lap_time", "mean_abs_ey", "rescues")  # fmt: skip
+    lacking = [c for c in needed if c not in runs.columns]
+    if lacking:
+        raise CapeError(f"{path}: no column {', '.join(lacking)}, so not a study's runs table; "
+                        f"delete it and {fix}")  # fmt: skip
+    return runs
+
+
+def json_option(text: str, option: str) -> Any:
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise CapeError(f"{option} {text!r}: not JSON ({exc})") from None
 
 
 def main() -> None:
@@ -90,17 +116,27 @@ def main() -> None:
     parser.add_argument("--ipopt", default="{}", help="IPOPT's own options, JSON (ipopt.options)")
     parser.add_argument("--cap", type=int, help="IPOPT's iterations at most (ipopt.max_iter)")
     parser.add_argument("--fatrop", default="{}", help="Fatrop's options, JSON (fatrop.options)")
-    parser.add_argument("--runs", default="results/replicates/study/runs.parquet")
+    parser.add_argument("--runs", type=Path,
+                        default=Path(paths.study_runs(paths.REPLICATES_SCOPE)))  # fmt: skip
     parser.add_argument("--study", nargs="+", default=["learned", "truth"])
     parser.add_argument("--internal", nargs="+")
     parser.add_argument("--replicate", nargs="+", type=int, default=[0])
     parser.add_argument("--limit", type=int, help="at most this many runs per (study, internal)")
-    parser.add_argument("--config", default="config/config.yaml")
-    parser.add_argument("--overlay", nargs="*", default=[])
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--json", type=Path, help="write every rerun's record here")
+    add_config(parser)
     args = parser.parse_args()
-    runs = pd.read_parquet(args.runs)
+    if args.jobs < 1 or (args.limit is not None and args.limit < 1):
+        parser.error("--jobs and --limit: give at least 1")
+    with json_output(args.json, "rescue_outcomes.py") as write:
+        write(rerun_all(args))
+
+
+def rerun_all(args: argparse.Namespace) -> list[dict[str, Any]]:
+    config = study_config(args)
+    options = {name: json_option(getattr(args, name), f"--{name}")
+               for name in ("sqp", "ipopt", "fatrop")}  # fmt: skip
+    runs = read_runs(args.runs)
     runs = runs[runs.controller.isin(NMPCS) & (runs.rescues > 0)]
     # a run two studies share (the ablation's diagonal is the learned study's) is listed under
     # each: select the studies first, then keep each folder once
@@ -113,7 +149,7 @@ def main() -> None:
         runs = shuffled.groupby(["study", "internal"]).head(args.limit)
     tasks = []
     for r in runs.itertuples():
-        timing = json.loads((Path(r.folder) / "timing.json").read_text())
+        timing = read_timing(Path(r.folder))
         tasks.append({"folder": r.folder, "study": r.study, "plant": r.plant,
                       "internal": r.internal, "controller": r.controller, "eta": float(r.eta),
                       "seed": int(r.seed), "replicate": int(r.replicate),
@@ -122,14 +158,15 @@ def main() -> None:
                       "lap_time": r.lap_time, "ey": r.mean_abs_ey, "rescues": int(r.rescues),
                       "old_rescue_s": (timing.get("controller_s") or {}).get("rescue"),
                       "old_succeeded": (timing.get("rescues") or {}).get("succeeded", 0),
-                      "config": args.config, "overlays": args.overlay,
-                      "rescue": rescue_setting(args.rescue), "sqp": json.loads(args.sqp),
-                      "ipopt": json.loads(args.ipopt), "cap": args.cap,
-                      "fatrop": json.loads(args.fatrop)})  # fmt: skip
+                      "config": config, "rescue": rescue_setting(args.rescue),
+                      "sqp": options["sqp"], "ipopt": options["ipopt"], "cap": args.cap,
+                      "fatrop": options["fatrop"]})  # fmt: skip
     print(f"{len(tasks)} runs that called the rescue; rerunning with rescue = {args.rescue}",
           flush=True)  # fmt: skip
     with ProcessPoolExecutor(args.jobs) as pool:
         done = list(pool.map(rerun, tasks, chunksize=1))
+    for d in done:
+        del d["config"]
     cells: dict[tuple, Counter] = defaultdict(Counter)
     changes: Counter = Counter()
     for d in done:
@@ -177,9 +214,8 @@ def main() -> None:
     print("\nlap outcomes that changed:")
     for (study, internal, what), n in sorted(changes.items()):
         print(f"  {study:8} {internal:9} {what:32} {n}")
-    if args.json:
-        args.json.write_text(json.dumps(done, indent=1, default=str))
+    return done
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run(main))

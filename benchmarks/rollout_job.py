@@ -15,19 +15,22 @@ casadi"`` (the floor of any job that needs them), and prints per job kind the me
 - per step of the lap (ms): ``controller``, ``plant`` and ``loop`` (reference points,
   projections, disturbances, recording: the lap minus the other two).
 
-    python benchmarks/rollout_job.py [--rounds 5] [--internal epm] [--eta 1]
+    python benchmarks/rollout_job.py [--rounds 5] [--internal epm] [--eta 1] [--replicate 0]
                                      [--controllers pid nmpc anmpc rnmpc]
+                                     [--configfile config/smoke.yaml]
 
-It needs what the rollouts need: ``snakemake --cores 2 results/models/rep0/epm/network.npz
+Run it from the study's folder. It needs what the rollouts need, at the paths the workflow
+gives them (``cape.layout.paths``): ``snakemake --cores 2 results/models/rep0/epm/network.npz
 results/raceline/ETHZMobil.npz``, and the compiled solvers (``snakemake --cores 2
-results/solvers/nmpc/epm.json`` …; the first job of each controller compiles otherwise, and
-that round is then dropped from the medians).
+results/solvers/rep0/nmpc/epm.json`` …; the first job of each controller compiles otherwise,
+and that round is then dropped from the medians).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import statistics
 import subprocess
 import sys
@@ -36,32 +39,41 @@ import time
 from pathlib import Path
 from typing import Any
 
-from cape.config import load_config
+from _common import add_config, require_file, run, study_config  # a sibling module
 
-REPO = Path(__file__).resolve().parents[1]
+from cape.errors import CapeError
+from cape.layout import paths
+from cape.layout.record import read_timing
+
 SECTIONS = ("tracks", "data", "reference", "disturbances", "rollout", "models")
 """What the workflow's rollout rule passes (workflow/rules/common.smk, rollout_config_json)."""
 
 
 def job_command(config: dict[str, Any], controller: str, internal: str, eta: str, out: Path,
-                models: Path) -> list[str]:  # fmt: skip
-    """The command line the rollout rule runs for one run on the ground-truth plant."""
+                replicate: int) -> list[str]:  # fmt: skip
+    """The command line the rollout rule runs for one run on the ground-truth plant, the
+    internal model of draw ``replicate`` where the workflow keeps it (``paths.model_dir``)."""
     sections = {k: config[k] for k in SECTIONS}
     sections["controllers"] = {controller: config["controllers"][controller]}
     learned = controller != "pid"
     command = ["cape", "rollout", "--study", "truth", "--plant", "truth", "--controller",
                controller, "--internal", internal if learned else "truth", "--eta", eta,
-               "--seed", "0", "--out", str(out), "--raceline",
-               str(REPO / "results" / "raceline" / f"{config['reference']['track']}.npz"),
+               "--seed", "0", "--replicate", str(replicate), "--out", str(out), "--raceline",
+               paths.raceline(config["reference"]["track"]),
                "--config-json", json.dumps(sections, sort_keys=True)]  # fmt: skip
     if learned:
-        command += ["--model", f"{internal}={models / internal}"]
+        command += ["--model", f"{internal}={paths.model_dir(internal, replicate)}"]
     return command
 
 
 def timed(command: list[str]) -> float:
+    """The command's wall time; ``CapeError`` with its last line of stderr when it fails."""
     start = time.perf_counter()
-    subprocess.run(command, cwd=REPO, check=True, stdout=subprocess.DEVNULL)
+    done = subprocess.run(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    if done.returncode:
+        said = (done.stderr.strip().splitlines() or ["(nothing on stderr)"])[-1]
+        raise CapeError(f"`{' '.join(command[:12])} …` failed (exit status {done.returncode}): "
+                        f"{said}")  # fmt: skip
     return time.perf_counter() - start
 
 
@@ -70,10 +82,23 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--internal", default="epm")
     parser.add_argument("--eta", default="1")
+    parser.add_argument("--replicate", type=int, default=0, help="the models' draw (default 0)")
     parser.add_argument("--controllers", nargs="+", default=["pid", "nmpc", "anmpc", "rnmpc"])
-    parser.add_argument("--models", type=Path, default=REPO / "results" / "models")
+    add_config(parser)
     args = parser.parse_args()
-    config = load_config(REPO / "config" / "config.yaml")
+    if args.rounds < 1:
+        parser.error("--rounds: give at least 1")
+    config = study_config(args)
+    unknown = [c for c in args.controllers if c not in config["controllers"]]
+    if unknown:
+        raise CapeError(f"--controllers {' '.join(unknown)}: not in the config's `controllers` "
+                        f"({', '.join(config['controllers'])})")  # fmt: skip
+    if shutil.which("cape") is None:
+        raise CapeError("the `cape` command is not on the PATH; activate the venv it is "
+                        "installed in (`pip install -e .`)")  # fmt: skip
+    require_file(paths.raceline(config["reference"]["track"]))
+    if any(c != "pid" for c in args.controllers):
+        require_file(Path(paths.model_dir(args.internal, args.replicate), "network.npz"))
     floor = [sys.executable, "-c", "import numpy, casadi"]
     rows: dict[str, list[dict[str, float]]] = {name: [] for name in ["floor", *args.controllers]}
     with tempfile.TemporaryDirectory() as tmp:
@@ -82,9 +107,12 @@ def main() -> None:
             for controller in args.controllers:
                 out = Path(tmp) / f"{controller}{r}"
                 command = job_command(config, controller, args.internal, args.eta, out,
-                                      args.models)  # fmt: skip
+                                      args.replicate)  # fmt: skip
                 wall = timed(command)
-                job = json.loads((out / "timing.json").read_text())["job_s"]
+                job = read_timing(out).get("job_s")
+                if not isinstance(job, dict):
+                    raise CapeError(f"{out / 'timing.json'}: no `job_s` (the job's phases); "
+                                    "this `cape` is older than the benchmark")  # fmt: skip
                 steps = max(int(job["steps"]), 1)
                 inside = sum(job[k] for k in ("startup", "config", "build", "lap", "write"))
                 rows_now[controller] = {
@@ -101,8 +129,10 @@ def main() -> None:
                     rows[name].append(row)
     columns = ["process", "fixed", "outside", "startup", "config", "build", "write",
                "controller ms/step", "plant ms/step", "loop ms/step"]  # fmt: skip
-    print(f"medians of {args.rounds} rounds (s unless ms/step); ground-truth plant, η = "
-          f"{args.eta}, internal model {args.internal} for the NMPCs")  # fmt: skip
+    print(
+        f"medians of {args.rounds} rounds (s unless ms/step); ground-truth plant, η = "
+        f"{args.eta}, internal model {args.internal} of draw {args.replicate} for the NMPCs"
+    )
     print(f"{'job':8}" + "".join(f"{c:>20}" for c in columns))
     for name, group in rows.items():
         cells = [statistics.median(r[c] for r in group) if c in group[0] else None
@@ -111,4 +141,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run(main))

@@ -14,21 +14,25 @@ replay's solve and Φ, and their ratio.
                                      [--eta 1 4] [--seed 0] [--replicate 0] [--plant learned]
     python benchmarks/step_inside.py --cache   # how long Φ's weights stay in the cache
 
-Run from a study's folder (its results/models, results/data and config).
+Run from a study's folder (its results/models, results/data and config, and ``--configfile``
+the overlays it was built with): the models are the draw's (``cape.layout.paths.models_of``).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from _common import add_config, run, study_config  # a sibling module
 from nmpc_step import replay  # a sibling script: run as `python benchmarks/step_inside.py`
 
 from cape.closedloop.setup import ModelFolders, build_run
-from cape.config import load_config
+from cape.errors import CapeError
+from cape.layout import paths
 
 
 def build(config: dict, args: argparse.Namespace, model: str, law: str, eta: float) -> Any:
@@ -37,7 +41,7 @@ def build(config: dict, args: argparse.Namespace, model: str, law: str, eta: flo
     plant = model if args.plant == "learned" else "truth"
     return build_run(
         config, plant, law, eta, args.seed, model,
-        ModelFolders(Path(f"results/models/rep{args.replicate}")), None,
+        ModelFolders(Path(paths.models_of(args.replicate))), None,
     )  # fmt: skip
 
 
@@ -87,7 +91,7 @@ def cache(config: dict, args: argparse.Namespace) -> None:
     from cape.models.trained import load_trained
 
     small, big = np.ones(1000), np.ones(64 * 2**20 // 8)
-    folders = ModelFolders(Path(f"results/models/rep{args.replicate}"))
+    folders = ModelFolders(Path(paths.models_of(args.replicate)))
     for model in args.models:
         trained = load_trained(folders(model), model, config["rollout"].get("compile"))
         window = np.random.default_rng(0).normal(size=(trained.physics.history, 7)) * 0.1
@@ -119,11 +123,15 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--replicate", type=int, default=0)
     parser.add_argument("--plant", default="learned", choices=["learned", "truth"])
-    parser.add_argument("--config", default="config/config.yaml")
     parser.add_argument("--cache", action="store_true",
                         help="only: how long each model's Φ weights stay in the cache")  # fmt: skip
+    add_config(parser)
     args = parser.parse_args()
-    config = load_config(args.config)
+    config = study_config(args)
+    unknown = [m for m in args.models if m not in config["models"]]
+    unknown += [c for c in args.controllers if c not in config["controllers"]]
+    if unknown:
+        raise CapeError(f"{' '.join(unknown)}: not in the config's `models` or `controllers`")
     if args.cache:
         cache(config, args)
         return
@@ -146,4 +154,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run(main))

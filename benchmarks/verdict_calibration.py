@@ -12,7 +12,10 @@ a few minutes at 1000 trials a case.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+
+from _common import run  # a sibling module
 
 from cape.study.calibration import bootstrap_two_level, exclusion_rate, t_over_draws
 
@@ -27,6 +30,8 @@ def main() -> None:
         "--bootstrap-trials", type=int, default=1000, help="trials a case, bootstrap"
     )
     args = parser.parse_args()
+    if args.trials < 1 or args.bootstrap_trials < 1:
+        parser.error("--trials and --bootstrap-trials: give at least 1")
     methods = (("t over draws", t_over_draws, args.trials),
                ("two-level bootstrap", bootstrap_two_level, args.bootstrap_trials))  # fmt: skip
     header = " | ".join(f"{r:g}" for r in RATIOS)
@@ -44,4 +49,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run(main))

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from conftest import workdir as _workdir  # shared with the smoke study's fixture
 
 from cape.config import REPO_ROOT
 from cape.study.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS
@@ -33,18 +34,6 @@ def _snakemake(
         text=True,
         timeout=timeout,
     )
-
-
-def _workdir(tmp_path: Path, **track_overrides: object) -> Path:
-    """A scratch working directory with its own config (absolute mirror path)."""
-    work = tmp_path / "work"
-    (work / "config").mkdir(parents=True)
-    cfg = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
-    mirror = cfg["tracks"]["mirror"]
-    cfg["tracks"]["mirror"] = str((REPO_ROOT / mirror).resolve()) if mirror else None
-    cfg["tracks"].update(track_overrides)
-    (work / "config" / "config.yaml").write_text(yaml.safe_dump(cfg))
-    return work
 
 
 def _digest(data: bytes) -> str:
@@ -245,21 +234,6 @@ def test_the_setup_notebook_shows_the_figure_and_tables_it_saves(tmp_path: Path)
     sections = "controllers, disturbances, models"
     assert f'config_json = "…"  # JSON of the config sections {sections}' in text
     assert "Study set-up" in text and "Table 3" in text  # ... and the rest of the page
-
-
-@pytest.fixture(scope="module")
-def smoke_study(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The whole workflow on the smoke slice, from nothing, once for the slow tests below: the
-    default target and the `replicates` target (two training replicates)."""
-    work = _workdir(tmp_path_factory.mktemp("smoke"))
-    shutil.copy(REPO_ROOT / "config" / "smoke.yaml", work / "config" / "smoke.yaml")
-    # about 5 minutes on 2 idle cores; the timeout only guards against a hang
-    result = _snakemake(
-        "--cores", "2", "-d", str(work), "all", "replicates", "--configfile", "config/smoke.yaml",
-        timeout=1800,
-    )  # fmt: skip
-    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
-    return work
 
 
 @pytest.mark.slow
