@@ -23,7 +23,7 @@ from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-from cape.errors import CapeError
+from cape.errors import CapeError, one_line
 
 DEFAULT_CONFIG = Path("config/config.yaml")
 
@@ -45,7 +45,7 @@ def run(main: Callable[[], int | None]) -> int:
         succeeded = True
         return status
     except CapeError as exc:
-        print(f"{name}: error: {exc}", file=sys.stderr)
+        print(f"{name}: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # `… | head`: the reader has had enough
         import os
@@ -53,7 +53,7 @@ def run(main: Callable[[], int | None]) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except OSError as exc:
-        print(f"{name}: error: {describe_os_error(exc)}", file=sys.stderr)
+        print(f"{name}: error: {one_line(describe_os_error(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{name}: interrupted; no output was left half-written", file=sys.stderr)

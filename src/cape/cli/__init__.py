@@ -19,7 +19,7 @@ from typing import NoReturn
 from cape import interrupt
 from cape.cli import data, models, runs, study  # noqa: F401  (they register their commands)
 from cape.cli.common import COMMANDS, STARTED
-from cape.errors import CapeError
+from cape.errors import CapeError, one_line
 
 __all__ = ["STARTED", "build_parser", "main"]
 
@@ -29,7 +29,7 @@ class OneLineParser(argparse.ArgumentParser):
     exit status 2, as every other error of ``cape``; the usage is one ``--help`` away."""
 
     def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
+        self.exit(2, f"{self.prog}: error: {one_line(message)} (see `{self.prog} --help`)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -97,10 +97,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.func(args)
         succeeded = True
     except CapeError as exc:
-        print(f"cape {args.command}: error: {exc}", file=sys.stderr)
+        print(f"cape {args.command}: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
     except OSError as exc:
-        print(f"cape {args.command}: error: {describe_os_error(exc)}", file=sys.stderr)
+        print(f"cape {args.command}: error: {one_line(describe_os_error(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"cape {args.command}: interrupted; no output was left half-written", file=sys.stderr)
