@@ -13,6 +13,7 @@ import copy
 import json
 import math
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -321,30 +322,36 @@ def config_from_args(config_path: str | None, config_json: str | None) -> dict[s
             raise CapeError(f"--config-json is not valid JSON ({exc})") from exc
         if not isinstance(sections, dict):
             raise CapeError("--config-json must be a JSON object of config sections")
-        marker = _validated_marker(config_json)
-        if marker is not None and marker.is_file():  # these very sections passed before
-            return sections
-        validate_config(sections, "--config-json", partial=True)
-        if marker is not None:
-            with contextlib.suppress(OSError):
-                marker.touch()
+        checked_once(config_json, lambda: validate_config(sections, "--config-json", partial=True))
         return sections
     return load_config(config_path or DEFAULT_CONFIG)
 
 
-def _validated_marker(config_json: str) -> Path | None:
-    """Where a mark says that ``config_json`` passed ``validate_config`` (partial): a file
-    named by the digest of the text, the schema and the checking code, in a folder of this
-    user's (``$TMPDIR/cape-<uid>/validated``). The workflow hands thousands of jobs the same
-    sections, and importing jsonschema would be a third of a short job's wall time
-    (docs/design.md); None where no private folder can be had."""
+def checked_once(what: str, check: Callable[[], Any], code: tuple[Path, ...] = ()) -> None:
+    """``check()``, unless it passed before on this machine for the same ``what`` (the text
+    that decides its outcome), the same config schema and the same checking code (this module
+    and ``code``). The workflow hands thousands of jobs the same config sections, and importing
+    jsonschema to check them would be a third of a short job's wall time (docs/trust.md). The
+    marks are files named by that digest in a folder of this user's
+    (``$TMPDIR/cape-<uid>/validated``); where none can be had, ``check()`` always runs."""
+    marker = _marker(what, code)
+    if marker is not None and marker.is_file():
+        return
+    check()
+    if marker is not None:
+        with contextlib.suppress(OSError):
+            marker.touch()
+
+
+def _marker(what: str, code: tuple[Path, ...]) -> Path | None:
     import hashlib
     import tempfile
 
-    digest = hashlib.sha256(config_json.encode())
+    digest = hashlib.sha256(what.encode())
     try:
         digest.update(schemas.schema_bytes(schemas.CONFIG))
-        digest.update(Path(__file__).read_bytes())
+        for source in (Path(__file__), *code):
+            digest.update(source.read_bytes())
     except OSError:
         return None
     folder = Path(tempfile.gettempdir()) / f"cape-{os.getuid()}" / "validated"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import json
 import math
 import zipfile
@@ -16,7 +17,7 @@ from cape.closedloop.disturbances import DisturbancePipeline
 from cape.closedloop.envelope import Envelope
 from cape.closedloop.plants import FixedParameterPlant, LearnedPlant, Plant, TruthPlant
 from cape.closedloop.rollout import RolloutResult, run_lap
-from cape.config import section
+from cape.config import checked_once, section
 from cape.controllers import controller_class
 from cape.controllers.base import Controller, validate_settings
 from cape.controllers.ekf import NoiseLevels
@@ -218,8 +219,17 @@ def build_run(
         trained_on = read_meta(folders(str(model_name))).get("data_sha256")
         envelope, envelope_source = Envelope.of_file(path, float(factor), trained_on)
     cls = controller_class(controller_name, controllers[controller_name])
-    if validate:  # a rule's config was validated when the workflow started
-        validate_settings(cls, controller_name, controllers[controller_name])
+    entry = controllers[controller_name]
+    if validate:
+        validate_settings(cls, controller_name, entry)
+    else:  # a rule's config: checked once per entry on this machine (cape.config.checked_once)
+        code = tuple(Path(inspect.getfile(c)) for c in (cls, validate_settings))
+        what = json.dumps([controller_name, cls.__module__, cls.__qualname__, entry], default=str)
+
+        def check() -> None:
+            validate_settings(cls, controller_name, entry, "--config-json")
+
+        checked_once(what, check, code)
     default_internal = str(plant_parsed)
     internal_model = None
     if cls.needs_internal_model:
