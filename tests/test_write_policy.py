@@ -201,3 +201,77 @@ def test_the_policy_module_runs_without_the_cli(tmp_path: Path) -> None:
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.stdout.strip() == "[]", done.stderr
+
+
+# --- the policy's own corners (cape.ownership, in process) ------------------------------------
+def test_a_legacy_model_folder_holding_other_rules_files_is_the_models(tmp_path: Path) -> None:
+    """Snakemake deletes a training's model.pt, meta.json and loss.csv before it reruns it; a
+    folder from before owner records then holds only what other rules or a killed training
+    left, and stays the training's. A file of the user's makes it the user's."""
+    from cape.cli.models import _model_output
+    from cape.errors import CapeError
+    from cape.ownership import claimed
+
+    folder = tmp_path / "seed0"
+    folder.mkdir()
+    (folder / "health.json").write_text("{}")
+    (folder / "checkpoint-0123456789abcdef.pt").write_bytes(b"x")
+    with claimed([_model_output(folder, "dpm", None)], "test"):
+        pass
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "thesis.tex").write_text("mine")
+    with (
+        pytest.raises(CapeError, match=r"thesis\.tex"),
+        claimed([_model_output(tmp_path / "other", "dpm", None)], "test"),
+    ):
+        pass
+
+
+def test_a_refusal_of_one_output_changes_no_other(tmp_path: Path) -> None:
+    from cape.errors import CapeError
+    from cape.ownership import Output, claimed
+
+    (tmp_path / "b.md").write_text("mine")
+    outs = [Output(tmp_path / "a.md", "table"), Output(tmp_path / "b.md", "table", option="-o")]
+    with pytest.raises(CapeError, match=r"b\.md"), claimed(outs, "test"):
+        pass
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.md"]
+
+
+def test_a_failure_leaves_no_empty_folder_and_no_record(tmp_path: Path) -> None:
+    from cape.ownership import Output, claimed
+
+    out = tmp_path / "new" / "deeper" / "run"
+    with pytest.raises(RuntimeError), claimed([Output(out, "run", "x", folder=True)], "test"):
+        out.mkdir()
+        raise RuntimeError("the lap failed")
+    assert sorted(tmp_path.iterdir()) == []
+
+
+def test_an_owner_record_is_never_followed_through_a_link(tmp_path: Path) -> None:
+    from cape.errors import CapeError
+    from cape.ownership import Output, claimed, owner_record
+
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep")
+    owner_record(tmp_path / "out.md").symlink_to(victim)
+    with (
+        pytest.raises(CapeError, match="not a plain file"),
+        claimed([Output(tmp_path / "out.md", "table")], "test"),
+    ):
+        pass
+    assert victim.read_text() == "keep"
+
+
+def test_a_forked_worker_does_not_keep_the_lock(tmp_path: Path) -> None:
+    from cape.controllers.guard import Guarded
+    from cape.ownership import Output, claim, release
+
+    out = [Output(tmp_path / "run", "run", "x", folder=True)]
+    claim(out, "test")
+    worker = Guarded(lambda r: r, cpu_s=5.0)
+    assert worker(3) == 3  # a worker forked while the output is held, still alive
+    release()
+    claim(out, "test")  # the worker's copy of the descriptor holds no lock
+    release()
+    worker.close()

@@ -345,22 +345,30 @@ def checked_once(what: str, check: Callable[[], Any], code: tuple[Path, ...] = (
 
 def _marker(what: str, code: tuple[Path, ...]) -> Path | None:
     import hashlib
+    import stat
     import tempfile
 
     digest = hashlib.sha256(what.encode())
+    here = Path(__file__).parent
+    checking = (Path(__file__), here / "layout" / "names.py", *(here / "schemas").glob("*.*"))
     try:
-        digest.update(schemas.schema_bytes(schemas.CONFIG))
-        for source in (Path(__file__), *code):
+        for source in sorted({*checking, *code}):
             digest.update(source.read_bytes())
     except OSError:
         return None
-    folder = Path(tempfile.gettempdir()) / f"cape-{os.getuid()}" / "validated"
+    base = Path(tempfile.gettempdir()) / f"cape-{os.getuid()}"
     try:
-        folder.mkdir(mode=0o700, parents=True, exist_ok=True)
-        info = folder.parent.stat()
+        with contextlib.suppress(FileExistsError):
+            os.mkdir(base, 0o700)
+        info = os.lstat(base)
+        if not stat.S_ISDIR(info.st_mode) or info.st_uid != os.getuid():
+            return None  # another's, or not a folder: no marks
+        if info.st_mode & 0o077:
+            os.chmod(base, 0o700)  # ours, made under a lax umask: close it
+        folder = base / "validated"
+        with contextlib.suppress(FileExistsError):
+            os.mkdir(folder, 0o700)
     except OSError:
-        return None
-    if info.st_uid != os.getuid() or info.st_mode & 0o022:  # another's, or others may write
         return None
     return folder / digest.hexdigest()
 

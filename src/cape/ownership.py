@@ -26,6 +26,7 @@ import contextlib
 import fcntl
 import json
 import os
+import stat
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -69,7 +70,7 @@ class _Held:
     def output_exists(self) -> bool:
         path = self.output.path
         if self.output.folder:
-            return path.is_dir() and any(path.iterdir())
+            return path.is_dir() and not _empty(path)
         return path.exists()
 
 
@@ -80,6 +81,16 @@ def owner_record(path: str | os.PathLike[str]) -> Path:
     """The owner record of the output at ``path``: ``.<name>.owner`` beside it."""
     path = Path(path)
     return path.parent / f".{path.name}.owner"
+
+
+def _empty(folder: Path) -> bool:
+    """A folder holding nothing but owner records (of outputs since deleted)."""
+    return all(is_owner_record(p) for p in folder.iterdir())
+
+
+def is_owner_record(path: Path) -> bool:
+    """Whether ``path`` is an owner record (``.<name>.owner``)."""
+    return path.name.startswith(".") and path.name.endswith(".owner")
 
 
 def repository_root() -> Path | None:
@@ -146,7 +157,7 @@ def _check_place(out: Output) -> None:
 def _check_owner(out: Output, record: Path) -> None:
     """Refuse unless the output is absent, an empty folder, or the same output."""
     path = out.path
-    if not path.exists() or (out.folder and not any(path.iterdir())):
+    if not path.exists() or (out.folder and _empty(path)):
         return
     owner = _read_owner(record)
     if owner is not None:
@@ -169,10 +180,22 @@ def _check_owner(out: Output, record: Path) -> None:
 
 
 def _lock(out: Output, record: Path) -> int:
-    """Open and lock ``record`` (created if absent); the same inode as the path's, so a record
-    removed meanwhile by a failed writer is never the one locked."""
+    """Open and lock ``record`` (created if absent, never through a symbolic link); the same
+    inode as the path's, so a record removed meanwhile by a failed writer is never the one
+    locked."""
+    flags = os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0)
     for _ in range(5):
-        fd = os.open(record, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fd = os.open(record, flags, 0o666)
+        except FileNotFoundError:  # its folder removed meanwhile by a failed claim: again
+            record.parent.mkdir(parents=True, exist_ok=True)
+            continue
+        except OSError as exc:  # ELOOP: a symbolic link planted as the record
+            why = f"its owner record {record.name} is not a plain file ({exc.strerror})"
+            raise _refuse(out, f"{why}; remove it") from None
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            os.close(fd)
+            raise _refuse(out, f"its owner record {record.name} is not a plain file; remove it")
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -180,7 +203,7 @@ def _lock(out: Output, record: Path) -> int:
             raise _refuse(out, "another command is writing it right now; wait for it to end, or "
                                "give another path") from None  # fmt: skip
         try:
-            same = os.fstat(fd).st_ino == os.stat(record).st_ino
+            same = os.fstat(fd).st_ino == os.stat(record, follow_symlinks=False).st_ino
         except FileNotFoundError:
             same = False
         if same:
@@ -190,9 +213,9 @@ def _lock(out: Output, record: Path) -> int:
 
 
 def claim(outputs: Sequence[Output], command: str) -> None:
-    """Check every output (all before any is locked or written) and take each one's lock and
-    owner record; raise ``CapeError`` naming the first that may not be written. Held until
-    ``release``."""
+    """Check every output and take each one's lock (all of them before any owner record is
+    written, so a refusal changes nothing), then write the owner records; raise ``CapeError``
+    naming the first output that may not be written. Held until ``release``."""
     seen: dict[Path, Output] = {}
     for out in outputs:
         _check_place(out)
@@ -209,16 +232,21 @@ def claim(outputs: Sequence[Output], command: str) -> None:
             record = owner_record(out.path)
             existed_record = record.exists()
             fd = _lock(out, record)
-            entry = _Held(out, fd, record, out.path.exists(), made=made)
+            existed = out.path.exists()
+            if out.folder and not existed:
+                made.append(out.path)  # an empty folder left by a failure is removed too
+            entry = _Held(out, fd, record, existed, made=made)
             held.append(entry)
             if not existed_record:
                 entry.made.append(record)  # removed again if it is refused or fails
             _check_owner(out, record)
-            entry.checked = True
+        for entry in held:
+            out = entry.output
             body = {"kind": out.kind, "identity": out.identity, "written_by": command}
             data = (json.dumps(body, sort_keys=True) + "\n").encode()
-            os.ftruncate(fd, 0)
-            os.pwrite(fd, data, 0)
+            os.ftruncate(entry.fd, 0)
+            os.pwrite(entry.fd, data, 0)
+            entry.checked = True
     except BaseException:
         _release(held, success=False)
         raise
@@ -235,6 +263,19 @@ def _release(held: list[_Held], success: bool) -> None:
                     else:
                         made.rmdir()
         os.close(entry.fd)
+
+
+def _close_in_child() -> None:
+    """A process forked while outputs are held (a solver's worker) drops its copies of the
+    locks' descriptors: the lock is the parent's, released when the parent lets go."""
+    for entry in _HELD:
+        with contextlib.suppress(OSError):
+            os.close(entry.fd)
+    _HELD.clear()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_close_in_child)
 
 
 def release(success: bool = True) -> None:

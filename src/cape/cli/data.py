@@ -35,7 +35,7 @@ def _tracks_arguments(p: argparse.ArgumentParser) -> None:
 @command("tracks", "obtain and verify the BayesRace track files (SPEC §2)", _tracks_arguments)
 def cmd_tracks(args: argparse.Namespace) -> None:
     from cape.config import section
-    from cape.ownership import Output
+    from cape.ownership import Output, is_owner_record
     from cape.tracks.fetch import BAYESRACE_FILES, obtain_tracks
 
     cfg = section(_config(args), "tracks")
@@ -43,10 +43,12 @@ def cmd_tracks(args: argparse.Namespace) -> None:
     dest = Path(args.dest or cfg["dir"])
 
     def tracks_only(folder: Path) -> str | None:  # a folder this command filled before
-        return "" if all(p.name in BAYESRACE_FILES for p in folder.iterdir()) else None
+        held = [p for p in folder.iterdir() if not is_owner_record(p)]
+        return "" if all(p.name in BAYESRACE_FILES for p in held) else None
 
     option = "--dest" if args.dest else "tracks.dir"
-    _claim(args, Output(dest, "folder of track files", folder=True, option=option,
+    where = dest.resolve() if dest.is_symlink() else dest  # a link to the files' folder: there
+    _claim(args, Output(where, "folder of track files", folder=True, option=option,
                         recognise=tracks_only))  # fmt: skip
     obtain_tracks(
         dest=dest,

@@ -131,19 +131,29 @@ def cmd_train(args: argparse.Namespace) -> None:
 def _model_output(out: Path, model: str, replicate: int | None) -> Any:
     """A model folder as an output (``cape.ownership``): a trained ``model`` of ``replicate``
     (None: a training that is no draw), as ``cape train`` and ``cape draw`` write it. A folder
-    from before owner records is recognised by its readable ``meta.json``."""
+    from before owner records is recognised by what it holds: only the files the workflow puts
+    there (another rule's health, frozen Φ or network, a training's checkpoint), and a model
+    only if its ``meta.json`` names this one (Snakemake deletes the model's files first)."""
+    from fnmatch import fnmatch
+
     from cape.models.trained import read_meta
-    from cape.ownership import Output
+    from cape.ownership import Output, is_owner_record
 
     def recognise(folder: Path) -> str | None:
+        names = {p.name for p in folder.iterdir() if not is_owner_record(p)}
+        known = set(paths.MODEL_FILES) | set(paths.BESIDE_A_MODEL)
+        if any(n not in known and not fnmatch(n, paths.CHECKPOINT_GLOB) for n in names):
+            return None  # a file the workflow never writes here: the user's
+        if not names & set(paths.MODEL_FILES):
+            return identity
         try:
             meta = read_meta(folder)
         except CapeError:
             return None
         return _model_identity(str(meta["name"]), meta.get("replicate"))
 
-    return Output(out, "trained model", _model_identity(model, replicate), folder=True,
-                  recognise=recognise)  # fmt: skip
+    identity = _model_identity(model, replicate)
+    return Output(out, "trained model", identity, folder=True, recognise=recognise)
 
 
 def _model_identity(model: str, replicate: int | None) -> str:

@@ -223,7 +223,12 @@ def build_run(
     if validate:
         validate_settings(cls, controller_name, entry)
     else:  # a rule's config: checked once per entry on this machine (cape.config.checked_once)
-        code = tuple(Path(inspect.getfile(c)) for c in (cls, validate_settings))
+        code = tuple(  # the class's module and everything of the controllers' it may use
+            {
+                Path(inspect.getfile(cls)),
+                *Path(inspect.getfile(validate_settings)).parent.glob("*.*"),
+            }
+        )
         what = json.dumps([controller_name, cls.__module__, cls.__qualname__, entry], default=str)
 
         def check() -> None:

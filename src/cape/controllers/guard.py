@@ -58,8 +58,15 @@ def _read_exactly(fd: int, size: int) -> bytes | None:
 
 
 class WorkerError(CapeError):
-    """A guarded call failed in its worker for a reason of its own (an exception), not by
-    its CPU limit."""
+    """A guarded call failed in its worker for a reason of its own (an exception, ``cause``),
+    not by its CPU limit."""
+
+    def __init__(self, cause: str, cpu_s: float) -> None:
+        self.cause = cause
+        super().__init__(
+            f"a guarded solver call failed in its worker ({cause}), which is not its CPU limit "
+            f"of {cpu_s} s; check the controller's settings, else report it"
+        )
 
 
 class Guarded:
@@ -72,6 +79,7 @@ class Guarded:
         self.poll_s = poll_s
         self.pid: int | None = None
         self.limited = 0  # calls ended by the limit
+        self.errors = 0  # calls that failed in the worker for a reason of their own
         self._to: int | None = None
         self._from: int | None = None
 
@@ -94,10 +102,8 @@ class Guarded:
         status, value = reply
         if status == "error":  # the worker's own failure: not a limit, and never silent
             self.close()
-            raise WorkerError(
-                f"a guarded solver call failed in its worker ({value}), which is not its CPU "
-                f"limit of {self.cpu_s} s; check the controller's settings, else report it"
-            )
+            self.errors += 1
+            raise WorkerError(value, self.cpu_s)
         return value
 
     def _await(self, before: float | None) -> Any | None:

@@ -16,13 +16,14 @@ the stages instead of a sparse factorisation of the whole KKT system (docs/close
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Mapping
 from typing import Any
 
 import casadi as ca
 import numpy as np
 
-from cape.controllers.guard import Guarded
+from cape.controllers.guard import Guarded, WorkerError
 from cape.controllers.shooting import MultipleShootingNLP
 from cape.controllers.sqp import SolveStats
 
@@ -116,7 +117,13 @@ class StagewiseNLP(MultipleShootingNLP):
         guess: np.ndarray | None = None,
     ) -> tuple[np.ndarray | None, bool]:
         kept = None if self._sol is None else [d.full() for d in self._sol]
-        reply = self.guarded((x0, params, throttle, guess, kept))
+        try:
+            reply = self.guarded((x0, params, throttle, guess, kept))
+        except WorkerError as exc:  # a failed solve, said as what it was: never a CPU limit
+            print(f"warning: {exc}", file=sys.stderr)
+            self._sol = None
+            self.stats = SolveStats(False, 0, f"the solver's worker failed: {exc.cause}")
+            return None, False
         if reply is None:
             self._sol = None
             self.stats = SolveStats(False, 0, f"more than {self.guarded.cpu_s} s of CPU")

@@ -31,6 +31,12 @@ health.json."""
 MODELS = _under("models")
 MODEL = _under("models", REP, "{model}")
 """A model's draw r: the training chosen for it, its frozen Φ and exported network."""
+MODEL_FILES = ("model.pt", "meta.json", "loss.csv")
+"""What a training writes into its folder, and a draw copies into its own."""
+BESIDE_A_MODEL = ("health.json", "frozen_phi.json", "network.npz")
+"""What other rules write into a model's folder: its health, frozen Φ and exported network."""
+CHECKPOINT_GLOB = "checkpoint-*.pt"
+"""A training's resumable checkpoints, in its folder while it runs."""
 SOLVERS = _under("solvers")
 SOLVER = _under("solvers", REP, "{controller}", "{internal}.json")
 REPLICATE_TABLES = _under("tables", REP)
