@@ -23,7 +23,7 @@ from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-from cape.errors import CapeError, one_line
+from cape.errors import CapeError
 
 DEFAULT_CONFIG = Path("config/config.yaml")
 
@@ -36,28 +36,22 @@ def run(main: Callable[[], int | None]) -> int:
     """``main()``'s exit status (0 when it returns None); a ``CapeError`` or ``OSError`` is
     one line on stderr and status 2, Ctrl-C one line and 130."""
     from cape import ownership
-    from cape.cli import describe_os_error
+    from cape.cli import told
 
-    name = script_name()
     succeeded = False
     try:
         status = main() or 0
         succeeded = True
         return status
-    except CapeError as exc:
-        print(f"{name}: error: {one_line(str(exc))}", file=sys.stderr)
-        return 2
     except BrokenPipeError:  # `… | head`: the reader has had enough
         import os
 
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
-    except OSError as exc:
-        print(f"{name}: error: {one_line(describe_os_error(exc))}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"{name}: interrupted; no output was left half-written", file=sys.stderr)
-        return 130
+    except (CapeError, OSError, KeyboardInterrupt) as exc:
+        status, message = told(exc)
+        print(f"{script_name()}: {message}", file=sys.stderr)
+        return status
     finally:
         ownership.release(succeeded)
 

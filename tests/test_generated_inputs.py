@@ -198,8 +198,9 @@ def rollout_invocation(box: Sandbox) -> st.SearchStrategy[list[str]]:
     )
 
 
-def config_leaf_invocation(box: Sandbox, folder: Path) -> st.SearchStrategy[list[str]]:
+def config_leaf_invocation(box: Sandbox) -> st.SearchStrategy[list[str]]:
     """A rollout with one leaf of the config replaced by a generated value."""
+    folder = box.config.parent  # beside the sandbox: not the commands' to change
     config = yaml.safe_load(box.config.read_text())
     leaves = [w for w in _leaves(config) if w]
 
@@ -209,7 +210,7 @@ def config_leaf_invocation(box: Sandbox, folder: Path) -> st.SearchStrategy[list
                "--out", "leaf-run", "--raceline", str(box.setup["raceline"])]  # fmt: skip
         if as_json:
             return [*run, "--config-json", json.dumps(bad)]
-        path = folder / "generated.yaml"
+        path = folder / f"{box.root.name}-generated.yaml"
         path.write_text(yaml.safe_dump(bad, allow_unicode=True))
         return [*run, "--config", str(path)]
 
@@ -263,24 +264,7 @@ def _property(strategy: Callable[[Sandbox], st.SearchStrategy], budget: settings
 
 test_rollout_options = _property(rollout_invocation, FAST)
 test_other_commands = _property(command_invocation, FAST)
+test_config_leaves = _property(config_leaf_invocation, FAST)
 test_rollout_options_many = pytest.mark.slow(_property(rollout_invocation, SLOW))
 test_other_commands_many = pytest.mark.slow(_property(command_invocation, SLOW))
-
-
-@FAST
-@given(data=st.data())
-def test_config_leaves(sandbox: Sandbox, tmp_path_factory: pytest.TempPathFactory,
-                       data: st.DataObject) -> None:  # fmt: skip
-    folder = tmp_path_factory.getbasetemp() / "generated-configs"
-    folder.mkdir(exist_ok=True)
-    check_invocation(sandbox, data.draw(config_leaf_invocation(sandbox, folder)))
-
-
-@pytest.mark.slow
-@SLOW
-@given(data=st.data())
-def test_config_leaves_many(sandbox: Sandbox, tmp_path_factory: pytest.TempPathFactory,
-                            data: st.DataObject) -> None:  # fmt: skip
-    folder = tmp_path_factory.getbasetemp() / "generated-configs"
-    folder.mkdir(exist_ok=True)
-    check_invocation(sandbox, data.draw(config_leaf_invocation(sandbox, folder)))
+test_config_leaves_many = pytest.mark.slow(_property(config_leaf_invocation, SLOW))

@@ -80,6 +80,18 @@ def describe_os_error(exc: OSError) -> str:
     return f"{where}{what} ({fix}; no file was left half-written)"
 
 
+def told(exc: BaseException) -> tuple[int, str]:
+    """How a command ends on ``exc``: its exit status and its one line. A ``CapeError`` or a
+    failed read or write (a full disk) is 2 and the message; Ctrl-C 130, SIGTERM 143."""
+    if isinstance(exc, CapeError):
+        return 2, f"error: {one_line(str(exc))}"
+    if isinstance(exc, OSError):
+        return 2, f"error: {one_line(describe_os_error(exc))}"
+    if isinstance(exc, Interrupted):
+        return 143, "terminated; no output was left half-written"
+    return 130, "interrupted; no output was left half-written"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one subcommand. A ``CapeError`` or a failed read or write (a full disk) becomes a
     one-line message and exit status 2; Ctrl-C and SIGTERM a one-line message and 130 or 143.
@@ -96,18 +108,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         args.func(args)
         succeeded = True
-    except CapeError as exc:
-        print(f"cape {args.command}: error: {one_line(str(exc))}", file=sys.stderr)
-        return 2
-    except OSError as exc:
-        print(f"cape {args.command}: error: {one_line(describe_os_error(exc))}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"cape {args.command}: interrupted; no output was left half-written", file=sys.stderr)
-        return 130
-    except Interrupted:
-        print(f"cape {args.command}: terminated; no output was left half-written", file=sys.stderr)
-        return 143
+    except (CapeError, OSError, KeyboardInterrupt, Interrupted) as exc:
+        status, message = told(exc)
+        print(f"cape {args.command}: {message}", file=sys.stderr)
+        return status
     finally:
         ownership.release(succeeded)  # the outputs' locks; a failure's empty claims removed
         for number, handler in previous.items():
