@@ -23,6 +23,7 @@ leaves nothing behind.
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import json
 import os
@@ -75,6 +76,8 @@ class _Held:
 
 
 _HELD: list[_Held] = []
+UNLOCKABLE = {errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL}
+"""What flock says on a file system that cannot lock (an NFS or Lustre mount without it)."""
 
 
 def owner_record(path: str | os.PathLike[str]) -> Path:
@@ -202,6 +205,13 @@ def _lock(out: Output, record: Path) -> int:
             os.close(fd)
             raise _refuse(out, "another command is writing it right now; wait for it to end, or "
                                "give another path") from None  # fmt: skip
+        except OSError as exc:
+            if exc.errno not in UNLOCKABLE:
+                os.close(fd)
+                raise
+            # a file system without flock (some cluster mounts): the record still says whose
+            # output it is; only two hand-run writers at once go unnoticed (Snakemake never
+            # runs two jobs with one output)
         try:
             same = os.fstat(fd).st_ino == os.stat(record, follow_symlinks=False).st_ino
         except FileNotFoundError:
