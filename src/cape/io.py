@@ -161,6 +161,8 @@ def read_npz(
     import zipfile
 
     try:
+        if not zipfile.is_zipfile(path):  # a text file, an .npy, an empty file: said as such
+            raise ValueError("not a zip archive, which every .npz is")
         with np.load(path, allow_pickle=False) as npz:
             arrays = {k: npz[k] for k in npz.files}
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, AttributeError) as exc:
