@@ -119,17 +119,31 @@ def health_config_json(model):
     )
 
 
-def draw_inputs(wildcards):
-    """The trainings draw r of a model is chosen among, asked for in the order of
-    cape.models.draws (a training not yet checked is planned, and the draw waits for it):
-    the chosen one's files and every consulted training's health record."""
+def draw_choice(wildcards):
+    """Which training draw r of a model is, asked for in the order of cape.models.draws (a
+    training not yet checked is planned, and the draw waits for it)."""
     model = wildcards.model
 
     def outcome(k):
         path = checkpoints.training_health.get(model=model, training_seed=training_seed(k)).output[0]
         return read_outcome(path)
 
-    choice = choose_training(int(wildcards.replicate), MAX_TRAININGS, outcome)
+    return choose_training(int(wildcards.replicate), MAX_TRAININGS, outcome)
+
+
+def draw_max_trainings(wildcards):
+    """The cap a draw is made under: training.max_trainings when the draw reached it, else the
+    least cap that makes the same choice. A cap raised with training.replicates thus redoes
+    only the draws it can change, never one that found its training."""
+    choice = draw_choice(wildcards)
+    return MAX_TRAININGS if choice.cap_reached else choice.index + 1
+
+
+def draw_inputs(wildcards):
+    """The trainings draw r of a model is chosen among: the chosen one's files and every
+    consulted training's health record."""
+    model = wildcards.model
+    choice = draw_choice(wildcards)
     chosen = paths.training_dir(model, choice.consulted[choice.index].seed)
     return {
         "health": [f"{paths.training_dir(model, o.seed)}/health.json" for o in choice.consulted],

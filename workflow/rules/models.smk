@@ -74,7 +74,7 @@ rule draw:
             f"--training {shlex.quote(os.path.dirname(h))}" for h in getattr(input, "health", [])
         ),
         out=lambda wildcards, output: os.path.dirname(output.weights),
-        cap=MAX_TRAININGS,
+        cap=draw_max_trainings,
     conda:
         CAPE_ENV
     log:

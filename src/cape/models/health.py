@@ -220,8 +220,10 @@ def reliability_table(
 
 
 def draw_cap(metas: Mapping[tuple[int, str], Mapping[str, Any]]) -> int:
-    """The cap on a model's trainings the draws were made under (``training.max_trainings``
-    as ``cape draw`` recorded it; 0 for folders made before draws)."""
+    """The cap on a model's trainings the draws were made under, as ``cape draw`` recorded it
+    (0 for folders made before draws). The workflow gives a draw that found its training the
+    least cap that finds it, and one that reached the cap ``training.max_trainings``: the
+    largest is the configured cap whenever a draw reached it."""
     return max(
         (int((m.get("draw") or {}).get("max_trainings", 0)) for m in metas.values()), default=0
     )
