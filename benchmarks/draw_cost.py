@@ -104,16 +104,21 @@ def solver_files(replicate: int, models: set[str] | None) -> list[Path]:
 
 
 def draw_runs(
-    config: dict[str, Any], replicate: int, models: set[str] | None, lacking: list[str]
+    config: dict[str, Any],
+    replicate: int,
+    models: set[str] | None,
+    lacking: list[str],
+    every: bool = False,
 ) -> list[dict]:
     """The phases of every run of the config's grid that draw ``replicate`` computes with a
-    trained network (of ``models`` only, when given); a run not computed goes to ``lacking``."""
+    trained network (of ``models`` only, when given; ``every``: with a network or not); a run
+    not computed goes to ``lacking``."""
     from cape.study.grid import study_grid
 
     rows, absent = [], []
     grid = study_grid(config)
     for run_id in dict.fromkeys(grid.values()):  # each computed run once
-        if run_id.replicate != replicate or not run_id.uses_trained_model():
+        if run_id.replicate != replicate or not (every or run_id.uses_trained_model()):
             continue
         names = {n.removesuffix("-fixed") for n in (run_id.plant, run_id.internal)} - {TRUTH}
         if models is not None and not names <= models:
@@ -131,7 +136,7 @@ def draw_runs(
                 f"an older version); delete {folder} and rerun snakemake"
             )
         rescues = timing.get("rescues") or {}
-        rows.append({**job, "study": run_id.study, "law": run_id.controller,
+        rows.append({**job, "study": run_id.study, "law": run_id.controller, "seed": run_id.seed,
                      "internal": run_id.internal, "eta": float(run_id.eta),
                      "parts": timing.get("controller_s") or {},
                      "rescues": int(metrics.get("rescues") or 0),

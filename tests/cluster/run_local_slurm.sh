@@ -2,15 +2,17 @@
 # A real SLURM check of the workflow: start a one-node SLURM cluster on this machine
 # (slurmctld and slurmd on localhost, munge for authentication), run the smoke study through
 # the repository's SLURM profile, run it again locally, and check that
-#   - the jobs went through SLURM (sbatch submitted them; the job-completion log lists them),
-#   - every run's metrics.json is byte-identical between the two.
+#   - the jobs went through SLURM (the job-completion log lists every submission), the rollouts
+#     in groups: at most one submission per 20 rollouts,
+#   - every run's metrics.json is byte-identical between the two,
+#   - the SLURM run took at most 1.5 × the local run's wall time (CAPE_SLURM_MAX_RATIO).
 #
 #   sudo bash tests/cluster/run_local_slurm.sh            # from the repository root, venv active
 #   CAPE_SLURM_TARGETS="results/data/DYN-PP-ETHZ.npz" ...  # a quicker check of one target
 #
 # Needs root (it installs Debian's slurm-wlm and munge when missing, writes /etc/slurm and starts
-# the daemons) and the Python environment of requirements.txt; it installs
-# requirements-cluster.txt into that environment. pytest runs it with `pytest -m cluster`.
+# the daemons) and the Python environment of requirements.txt (which holds the profile's
+# executor plugin). pytest runs it with `pytest -m cluster`.
 set -euo pipefail
 
 REPO=$(cd "$(dirname "$0")/../.." && pwd)
@@ -29,7 +31,6 @@ if ! command -v slurmctld >/dev/null || ! command -v munged >/dev/null; then
     apt-get update -qq
     DEBIAN_FRONTEND=noninteractive apt-get install -y -qq slurm-wlm munge >/dev/null
 fi
-pip install -q -r "$REPO/requirements-cluster.txt"
 slurmctld -V
 
 say "munge"
@@ -57,7 +58,7 @@ SlurmdSpoolDir=/var/spool/slurmd
 SlurmctldLogFile=/var/log/slurm/slurmctld.log
 SlurmdLogFile=/var/log/slurm/slurmd.log
 ProctrackType=proctrack/pgid
-TaskPlugin=task/none
+TaskPlugin=task/affinity   # binds a job to its CPUs, as real clusters do (a group job sees its own)
 JobAcctGatherType=jobacct_gather/none
 AccountingStorageType=accounting_storage/none
 JobCompType=jobcomp/filetxt
@@ -106,14 +107,15 @@ done
 say "smoke study through SLURM"
 start=$(date +%s)
 # shellcheck disable=SC2086
-# this test cluster keeps no accounting database, so job states come from squeue (MinJobAge
-# above keeps finished jobs listed), not from sacct as on most real clusters
+# this cluster has no queue and answers at once, so the jobs' states are asked every 2 s, not
+# every 10 s as the profile does for a real cluster (CAPE_SLURM_STATUS_SECONDS)
 snakemake $TARGETS -s "$REPO/Snakefile" -d "$WORK/slurm" \
-    --workflow-profile "$REPO/workflow/profiles/slurm" --jobs "$CPUS" \
-    --slurm-status-command squeue --slurm-init-seconds-before-status-checks 5 \
+    --workflow-profile "$REPO/workflow/profiles/slurm" \
+    --seconds-between-status-checks "${CAPE_SLURM_STATUS_SECONDS:-2}" \
     --configfile "$WORK/slurm/config/smoke.yaml" > "$WORK/slurm.log" 2>&1 \
     || { tail -40 "$WORK/slurm.log"; exit 1; }
-echo "SLURM run: $(( $(date +%s) - start )) s"
+slurm_s=$(( $(date +%s) - start ))
+echo "SLURM run: $slurm_s s"
 
 say "smoke study locally"
 start=$(date +%s)
@@ -121,16 +123,25 @@ start=$(date +%s)
 snakemake $TARGETS -s "$REPO/Snakefile" -d "$WORK/local" --cores "$CPUS" \
     --configfile "$WORK/local/config/smoke.yaml" > "$WORK/local.log" 2>&1 \
     || { tail -40 "$WORK/local.log"; exit 1; }
-echo "local run: $(( $(date +%s) - start )) s"
+local_s=$(( $(date +%s) - start ))
+echo "local run: $local_s s"
 
 say "checks"
-submitted=$(grep -c "submitted" "$WORK/slurm.log" || true)
+# every submission, from SLURM's job-completion log (the profile names jobs cape-<group or rule>)
 completed=$(grep -c "JobState=COMPLETED" /var/log/slurm/jobcomp.log || true)
-failed=$(grep -c "JobState=FAILED" /var/log/slurm/jobcomp.log || true)
-echo "sbatch submissions in the log: $submitted; jobs completed by SLURM: $completed, failed: $failed"
-[ "$completed" -gt 0 ] || { echo "FAIL: no job completed through SLURM" >&2; exit 1; }
-[ "$failed" -eq 0 ] || { echo "FAIL: $failed SLURM jobs failed" >&2; exit 1; }
-grep -q "slurm" "$WORK/slurm.log" || { echo "FAIL: the run did not use the SLURM executor" >&2; exit 1; }
+failed=$(grep -c "JobState=" /var/log/slurm/jobcomp.log | awk -v c="$completed" '{print $1 - c}')
+submissions=$(grep -c "JobState=" /var/log/slurm/jobcomp.log || true)
+rollout_submissions=$(grep -c "Name=cape-rollouts-" /var/log/slurm/jobcomp.log || true)
+rollouts=$( (find "$WORK/slurm/results/runs" -name metrics.json 2>/dev/null || true) | wc -l)
+echo "sbatch submissions: $submissions ($rollout_submissions of them for $rollouts rollouts," \
+     "$((submissions - rollout_submissions)) for the other jobs); completed: $completed, failed: $failed"
+grep -o "Name=cape-[^ ]*" /var/log/slurm/jobcomp.log | sort | uniq -c
+[ "$submissions" -gt 0 ] || { echo "FAIL: no job went through SLURM" >&2; exit 1; }
+[ "$failed" -eq 0 ] || { echo "FAIL: $failed SLURM jobs did not complete" >&2; exit 1; }
+if [ "$rollouts" -gt 0 ] && [ $((rollout_submissions * 20)) -gt "$rollouts" ]; then
+    echo "FAIL: $rollout_submissions submissions for $rollouts rollouts (at most one per 20)" >&2
+    exit 1
+fi
 
 compared=0
 while IFS= read -r file; do
@@ -138,10 +149,14 @@ while IFS= read -r file; do
     cmp -s "$file" "$WORK/slurm/$rel" || { echo "FAIL: $rel differs between SLURM and local" >&2; exit 1; }
     compared=$((compared + 1))
 done < <(find "$WORK/local/results/runs" -name metrics.json 2>/dev/null | sort)
-n_slurm=$( (find "$WORK/slurm/results/runs" -name metrics.json 2>/dev/null || true) | wc -l)
-[ "$compared" -eq "$n_slurm" ] || { echo "FAIL: $n_slurm runs through SLURM, $compared locally" >&2; exit 1; }
+[ "$compared" -eq "$rollouts" ] || { echo "FAIL: $rollouts runs through SLURM, $compared locally" >&2; exit 1; }
 for file in $TARGETS; do
     cmp -s "$WORK/local/$file" "$WORK/slurm/$file" || { echo "FAIL: $file differs" >&2; exit 1; }
 done
 echo "metrics.json byte-identical in $compared runs"
+
+ratio=$(awk -v s="$slurm_s" -v l="$local_s" 'BEGIN {printf "%.2f", s / l}')
+echo "wall time: SLURM $slurm_s s, local $local_s s, ratio $ratio (at most ${CAPE_SLURM_MAX_RATIO:-1.5})"
+awk -v r="$ratio" -v m="${CAPE_SLURM_MAX_RATIO:-1.5}" 'BEGIN {exit !(r <= m)}' \
+    || { echo "FAIL: SLURM took $ratio × the local run's time" >&2; exit 1; }
 echo "PASS"

@@ -1,0 +1,98 @@
+#!/usr/bin/env python3
+"""Say whether one SLURM job is running, succeeded or failed: the SLURM profile's status command.
+
+Snakemake's cluster-generic executor calls ``status.py JOBID`` for every job in flight, every
+few seconds, and reads one word: ``running``, ``success`` or ``failed``. So that a study with
+many jobs in flight costs the scheduler one query per round, not one per job, the user's queue
+(``squeue``) is read at most once per ``CACHE_SECONDS`` into ``.snakemake/slurm-status.json``;
+a job no longer queued is looked up once in ``sacct`` (the accounting database), or, on a
+cluster that keeps none, in ``scontrol``. A job that neither knows is reported failed, with
+the reason on stderr: it cannot be waited for.
+"""
+
+from __future__ import annotations
+
+import getpass
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+CACHE = Path(".snakemake") / "slurm-status.json"
+CACHE_SECONDS = 3.0  # one round's questions share one squeue
+SUCCESS = {"COMPLETED"}
+RUNNING = {
+    "PENDING", "CONFIGURING", "RUNNING", "COMPLETING", "REQUEUED", "REQUEUE_FED",
+    "REQUEUE_HOLD", "RESIZING", "SUSPENDED", "STAGE_OUT", "SIGNALING", "RESV_DEL_HOLD",
+    "STOPPED", "POWER_UP_NODE",
+}  # fmt: skip
+# everything else is failed: FAILED, TIMEOUT, OUT_OF_MEMORY, CANCELLED, NODE_FAIL, PREEMPTED,
+# BOOT_FAIL, DEADLINE, REVOKED, SPECIAL_EXIT
+
+
+def verdict(state: str) -> str:
+    """``success``, ``running`` or ``failed`` for a SLURM job state ("CANCELLED by 0" too)."""
+    word = state.split()[0].rstrip("+") if state.strip() else ""
+    if word in SUCCESS:
+        return "success"
+    return "running" if word in RUNNING else "failed"
+
+
+def _run(*command: str) -> str | None:
+    """The command's output, or None when it fails or is not installed."""
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, timeout=60)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return done.stdout if done.returncode == 0 else None
+
+
+def queued(now: float) -> dict[str, str]:
+    """Job id → state of the user's queued jobs, at most CACHE_SECONDS old."""
+    try:
+        cached = json.loads(CACHE.read_text())
+        if now - float(cached["time"]) < CACHE_SECONDS:
+            return dict(cached["jobs"])
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    out = _run("squeue", "-h", "-u", getpass.getuser(), "-o", "%i|%T")
+    if out is None:
+        return {}
+    jobs = dict(line.split("|", 1) for line in out.split() if "|" in line)
+    CACHE.parent.mkdir(parents=True, exist_ok=True)
+    part = CACHE.with_name(f"{CACHE.name}.{os.getpid()}.part")
+    part.write_text(json.dumps({"time": now, "jobs": jobs}))
+    part.replace(CACHE)  # atomic: a reader never sees half a file
+    return jobs
+
+
+def final_state(jobid: str) -> str | None:
+    """A job's state from the accounting database, else from the controller's memory."""
+    out = _run("sacct", "-X", "-n", "-P", "-j", jobid, "-o", "State")
+    if out and out.strip():
+        return out.strip().splitlines()[0]
+    out = _run("scontrol", "show", "job", "-o", jobid)
+    for field in (out or "").split():
+        if field.startswith("JobState="):
+            return field.removeprefix("JobState=")
+    return None
+
+
+def main(argv: list[str]) -> int:
+    if len(argv) != 2:
+        print("usage: status.py JOBID", file=sys.stderr)
+        return 2
+    jobid = argv[1].strip()
+    state = queued(time.time()).get(jobid) or final_state(jobid)
+    if state is None:
+        print(f"status.py: SLURM knows no job {jobid} (squeue, sacct, scontrol)", file=sys.stderr)
+        print("failed")
+        return 0
+    print(verdict(state))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))
