@@ -46,6 +46,7 @@ ARGS: dict[str, Args] = {
         "--repeats", "1", "--problems", "20", *SMOKE,
     ],
     "ddm_stall.py": lambda tmp: [paths.training_dir("ddm", 0), *SMOKE],
+    "cluster_projection.py": lambda tmp: SMOKE,
     "draw_cost.py": lambda tmp: ["--replicate", "1", *SMOKE],
     "model_inference.py": lambda tmp: [
         "--models", "epm", "--rounds", "2", "--block", "2", "--cache", str(tmp / "cache"), *SMOKE,
@@ -215,6 +216,35 @@ def test_a_partial_study_is_told_what_it_lacks_and_given_no_total(study: Path) -
     costs = benchmark("study_cost.py", cwd=study)
     assert costs.returncode == 0, costs.stdout + costs.stderr
     assert "no total" in costs.stdout and "runs not computed" in costs.stdout, costs.stdout
+
+
+def test_a_partial_study_is_not_projected_and_told_what_it_lacks(study: Path) -> None:
+    _draws(study, 0)
+    result = benchmark("cluster_projection.py", cwd=study)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "not projected" in result.stdout and "| R draws" not in result.stdout, result.stdout
+    assert "runs not computed" in result.stdout, result.stdout
+
+
+def test_the_projection_schedules_as_computed_by_hand() -> None:
+    """Draw 0: DPM's training (10 s) then its retry (5 s), EPM's (8 s), a DPM solver (2 s),
+    one group of two 1 s runs (+ 0.5 s each, + 1 s per group). On one slot the jobs go one
+    after another (10 + 8 + 5 + 2 + 4 = 29 s); on two, the retry and solver follow DPM's
+    training (10 + 5 + 2), then the group (4): 21 s; a 1 s queue wait adds 1 s to each of
+    those four steps: 25 s."""
+    sys.path.insert(0, str(BENCHMARKS))
+    try:
+        from cluster_projection import Draw, makespan, study_jobs
+    finally:
+        sys.path.remove(str(BENCHMARKS))
+    draw = Draw({"dpm": [10.0, 5.0], "epm": [8.0]}, [("dpm", 2.0)], {(0.0, 0): [1.0, 1.0]})
+    jobs = study_jobs([draw, draw], 1, 0.5, 1.0)
+    assert [j.seconds for j in jobs] == [10.0, 5.0, 8.0, 2.0, 4.0]
+    assert makespan(jobs, 1, 0.0) == 29.0
+    assert makespan(jobs, 2, 0.0) == 21.0
+    assert makespan(jobs, 2, 1.0) == 25.0
+    two = study_jobs([draw, draw], 2, 0.5, 1.0)  # a second draw: its own, independent jobs
+    assert makespan(two, 10, 0.0) == 21.0 and makespan(two, 1, 0.0) == 58.0
 
 
 def test_acados_missing_is_one_line_naming_the_install(tmp_path: Path) -> None:
