@@ -10,6 +10,7 @@ import re
 import stat
 import subprocess
 import sys
+import time
 from collections import Counter, defaultdict
 from pathlib import Path
 
@@ -204,7 +205,7 @@ def test_submit_turns_a_group_job_into_one_sbatch_call(tmp_path: Path) -> None:
 
 
 def test_status_reads_the_queue_once_per_round_and_a_finished_job_once(tmp_path: Path) -> None:
-    """Queued jobs are running (one squeue for many questions within 5 s); a job no longer
+    """Queued jobs are running (one squeue for a round of questions); a job no longer
     queued is success or failed by sacct, or by scontrol where sacct has no answer; a job
     nobody knows is failed, with the reason on stderr."""
     bin_dir = tmp_path / "bin"
@@ -223,5 +224,9 @@ def test_status_reads_the_queue_once_per_round_and_a_finished_job_once(tmp_path:
         assert done.returncode == 0 and done.stdout.strip() == verdict, (jobid, done)
         assert bool(done.stderr) == (jobid == "99"), done.stderr
     made = calls.read_text().split()
-    assert made.count("squeue") == 1
+    assert made.count("squeue") == 1  # one round: the calls came within a second of each other
     assert made.count("sacct") == 6  # the six jobs squeue did not list, once each
+    time.sleep(1.2)  # the next round reads the queue again
+    done = _script("status.py", "11", cwd=tmp_path, bin_dir=bin_dir)
+    assert done.stdout.strip() == "running"
+    assert calls.read_text().split().count("squeue") == 2

@@ -107,11 +107,11 @@ done
 say "smoke study through SLURM"
 start=$(date +%s)
 # shellcheck disable=SC2086
-# this cluster has no queue and answers at once, so the jobs' states are asked every 2 s, not
+# this cluster has no queue and answers at once, so the jobs' states are asked every 1 s, not
 # every 10 s as the profile does for a real cluster (CAPE_SLURM_STATUS_SECONDS)
 snakemake $TARGETS -s "$REPO/Snakefile" -d "$WORK/slurm" \
     --workflow-profile "$REPO/workflow/profiles/slurm" \
-    --seconds-between-status-checks "${CAPE_SLURM_STATUS_SECONDS:-2}" \
+    --seconds-between-status-checks "${CAPE_SLURM_STATUS_SECONDS:-1}" \
     --configfile "$WORK/slurm/config/smoke.yaml" > "$WORK/slurm.log" 2>&1 \
     || { tail -40 "$WORK/slurm.log"; exit 1; }
 slurm_s=$(( $(date +%s) - start ))

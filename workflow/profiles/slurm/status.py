@@ -1,13 +1,14 @@
 #!/usr/bin/env python3
 """Say whether one SLURM job is running, succeeded or failed: the SLURM profile's status command.
 
-Snakemake's cluster-generic executor calls ``status.py JOBID`` for every job in flight, every
-few seconds, and reads one word: ``running``, ``success`` or ``failed``. So that a study with
-many jobs in flight costs the scheduler one query per round, not one per job, the user's queue
-(``squeue``) is read at most once per ``CACHE_SECONDS`` into ``.snakemake/slurm-status.json``;
-a job no longer queued is looked up once in ``sacct`` (the accounting database), or, on a
-cluster that keeps none, in ``scontrol``. A job that neither knows is reported failed, with
-the reason on stderr: it cannot be waited for.
+Snakemake's cluster-generic executor calls ``status.py JOBID`` for every job in flight, once
+a round (``seconds-between-status-checks``), and reads one word: ``running``, ``success`` or
+``failed``. So that a study with many jobs in flight costs the scheduler one query per round,
+not one per job, the user's queue (``squeue``) is read by the round's first call into
+``.snakemake/slurm-status.json`` and shared by the calls that follow it within ``ROUND_GAP``
+seconds of each other. A job no longer queued is looked up once in ``sacct`` (the accounting
+database), or, on a cluster that keeps none, in ``scontrol``. A job that neither knows is
+reported failed, with the reason on stderr: it cannot be waited for.
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ import time
 from pathlib import Path
 
 CACHE = Path(".snakemake") / "slurm-status.json"
-CACHE_SECONDS = 3.0  # one round's questions share one squeue
+ROUND_GAP = 1.0  # s: a call later than this after the one before starts a new round
+MAX_AGE = 30.0  # s: a snapshot is read again after this long, even within one round
 SUCCESS = {"COMPLETED"}
 RUNNING = {
     "PENDING", "CONFIGURING", "RUNNING", "COMPLETING", "REQUEUED", "REQUEUE_FED",
@@ -50,20 +52,21 @@ def _run(*command: str) -> str | None:
 
 
 def queued(now: float) -> dict[str, str]:
-    """Job id → state of the user's queued jobs, at most CACHE_SECONDS old."""
+    """Job id → state of the user's queued jobs, read once per round of calls."""
     try:
         cached = json.loads(CACHE.read_text())
-        if now - float(cached["time"]) < CACHE_SECONDS:
-            return dict(cached["jobs"])
+        fresh = now - float(cached["called"]) < ROUND_GAP and now - float(cached["read"]) < MAX_AGE
+        jobs, read = dict(cached["jobs"]), float(cached["read"])
     except (OSError, ValueError, KeyError, TypeError):
-        pass
-    out = _run("squeue", "-h", "-u", getpass.getuser(), "-o", "%i|%T")
-    if out is None:
-        return {}
-    jobs = dict(line.split("|", 1) for line in out.split() if "|" in line)
+        fresh = False
+    if not fresh:
+        out = _run("squeue", "-h", "-u", getpass.getuser(), "-o", "%i|%T")
+        if out is None:
+            return {}
+        jobs, read = dict(line.split("|", 1) for line in out.split() if "|" in line), now
     CACHE.parent.mkdir(parents=True, exist_ok=True)
     part = CACHE.with_name(f"{CACHE.name}.{os.getpid()}.part")
-    part.write_text(json.dumps({"time": now, "jobs": jobs}))
+    part.write_text(json.dumps({"called": now, "read": read, "jobs": jobs}))
     part.replace(CACHE)  # atomic: a reader never sees half a file
     return jobs
 
