@@ -222,10 +222,16 @@ def test_status_reads_the_queue_once_per_round_and_a_finished_job_once(tmp_path:
     for jobid, verdict in expected.items():
         done = _script("status.py", jobid, cwd=tmp_path, bin_dir=bin_dir)
         assert done.returncode == 0 and done.stdout.strip() == verdict, (jobid, done)
-        assert bool(done.stderr) == (jobid == "99"), done.stderr
+        assert bool(done.stderr) == (verdict == "failed"), done.stderr
+    log = tmp_path / paths.log("slurm") / "rollouts-r0-eta0-seed0" / "23.log"
+    log.parent.mkdir(parents=True)
+    log.write_text("oom-kill event\n")
+    told = _script("status.py", "23", cwd=tmp_path, bin_dir=bin_dir).stderr
+    where = log.relative_to(tmp_path)
+    assert told.strip() == f"status.py: SLURM job 23 ended OUT_OF_MEMORY; its log: {where}"
     made = calls.read_text().split()
     assert made.count("squeue") == 1  # one round: the calls came within a second of each other
-    assert made.count("sacct") == 6  # the six jobs squeue did not list, once each
+    assert made.count("sacct") == 7  # the six jobs squeue did not list, and 23 again
     time.sleep(1.2)  # the next round reads the queue again
     done = _script("status.py", "11", cwd=tmp_path, bin_dir=bin_dir)
     assert done.stdout.strip() == "running"

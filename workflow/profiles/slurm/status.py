@@ -21,6 +21,8 @@ import sys
 import time
 from pathlib import Path
 
+from submit import LOG_ROOT  # this folder's submit.py: where SLURM's logs of the jobs go
+
 CACHE = Path(".snakemake") / "slurm-status.json"
 ROUND_GAP = 1.0  # s: a call later than this after the one before starts a new round
 MAX_AGE = 30.0  # s: a snapshot is read again after this long, even within one round
@@ -93,7 +95,12 @@ def main(argv: list[str]) -> int:
         print(f"status.py: SLURM knows no job {jobid} (squeue, sacct, scontrol)", file=sys.stderr)
         print("failed")
         return 0
-    print(verdict(state))
+    said = verdict(state)
+    if said == "failed":  # why, and where SLURM's own log of the job is
+        logs = sorted(str(p) for p in LOG_ROOT.glob(f"*/{jobid}.log"))
+        where = f"; its log: {logs[0]}" if logs else ""
+        print(f"status.py: SLURM job {jobid} ended {state.strip()}{where}", file=sys.stderr)
+    print(said)
     return 0
 
 
