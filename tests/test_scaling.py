@@ -10,7 +10,6 @@ import re
 import stat
 import subprocess
 import sys
-import time
 from collections import Counter, defaultdict
 from pathlib import Path
 
@@ -145,24 +144,34 @@ def _fake(bin_dir: Path, name: str, script: str) -> None:
     path.chmod(path.stat().st_mode | stat.S_IEXEC)
 
 
-def _script(name: str, *args: str, cwd: Path, bin_dir: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"}
+def _script(
+    name: str, *args: str, cwd: Path, bin_dir: Path, **env: str
+) -> subprocess.CompletedProcess:
+    path = f"{bin_dir}{os.pathsep}{os.environ['PATH']}"
     return subprocess.run(
         [sys.executable, str(PROFILE / name), *args],
-        cwd=cwd, env=env, capture_output=True, text=True, timeout=60,
+        cwd=cwd, env={**os.environ, "PATH": path, **env}, capture_output=True, text=True,
+        timeout=60,
     )  # fmt: skip
 
 
+SNAKEMAKE_LINE = (
+    "cd /study && python -m snakemake --target-jobs 'rollout:eta=0' --cores 'all' --nolock"
+)
+
+
 def _jobscript(tmp_path: Path, properties: dict) -> Path:
+    """A job script as Snakemake's cluster-generic executor writes one."""
     path = tmp_path / "snakejob.sh"
-    path.write_text(f"#!/bin/sh\n# properties = {json.dumps(properties)}\necho run\n")
+    path.write_text(f"#!/bin/sh\n# properties = {json.dumps(properties)}\n{SNAKEMAKE_LINE}\n")
     return path
 
 
 def test_submit_turns_a_group_job_into_one_sbatch_call(tmp_path: Path) -> None:
     """A group job of 50 rollouts on 2 lanes: one sbatch with the group's CPUs, memory and
-    runtime, named after the group, its log in the group's folder under results/logs/slurm
-    (made, since sbatch makes none); account and partition only when given."""
+    runtime (one minute more for its Snakemake to start), named after the group, its log in
+    the group's folder under results/logs/slurm (made, since sbatch makes none); account and
+    partition only when given; the job's Snakemake pinned to the job's CPUs."""
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
     _fake(bin_dir, "sbatch", f'printf "%s\\n" "$@" > {tmp_path}/argv\necho "4242;cape"\n')
@@ -170,44 +179,43 @@ def test_submit_turns_a_group_job_into_one_sbatch_call(tmp_path: Path) -> None:
         "type": "group", "groupid": "rollouts-r0-eta0.5-seed1", "threads": 2,
         "resources": {"mem_mb": 3000, "runtime": 25, "slurm_partition": "short"},
     }  # fmt: skip
-    done = _script("submit.py", str(_jobscript(tmp_path, group)), cwd=tmp_path, bin_dir=bin_dir)
+    script = _jobscript(tmp_path, group)
+    done = _script("submit.py", str(script), cwd=tmp_path, bin_dir=bin_dir)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "4242"
     argv = (tmp_path / "argv").read_text().splitlines()
     assert argv[:2] == ["--parsable", "--job-name=cape-rollouts-r0-eta0.5-seed1"]
     log = f"{paths.log('slurm')}/rollouts-r0-eta0.5-seed1/%j.log"
     assert f"--output={log}" in argv
-    assert {"--cpus-per-task=2", "--mem=3000", "--time=25", "--partition=short"} <= set(argv)
+    assert {"--cpus-per-task=2", "--mem=3000", "--time=26", "--partition=short"} <= set(argv)
     assert not any(a.startswith("--account") for a in argv)
-    assert argv[-1] == str(tmp_path / "snakejob.sh")
+    assert argv[-1] == str(script)
     assert (tmp_path / paths.log("slurm") / "rollouts-r0-eta0.5-seed1").is_dir()
+    assert script.read_text().splitlines()[2] == SNAKEMAKE_LINE.replace("'all'", "2")
 
-    single = {
-        "type": "single",
-        "rule": "train",
-        "threads": 4,
-        "resources": {
-            "mem_mb": 8000,
-            "runtime": 240,
-            "slurm_account": "lab",
-            "slurm_extra": "--exclusive",
-        },
-    }
+    # --default-resources on the command line replaces the profile's: no runtime, no memory
+    single = {"type": "single", "rule": "train", "threads": 4, "resources": {
+        "mem_mb": "<TBD>", "slurm_account": "lab", "slurm_extra": "--exclusive"}}  # fmt: skip
     done = _script("submit.py", str(_jobscript(tmp_path, single)), cwd=tmp_path, bin_dir=bin_dir)
     assert done.returncode == 0, done.stderr
     argv = (tmp_path / "argv").read_text().splitlines()
     assert {"--job-name=cape-train", "--cpus-per-task=4", "--account=lab", "--exclusive"} <= set(
         argv
     )
+    assert not any(a.startswith(("--time", "--mem")) for a in argv)
     _fake(bin_dir, "sbatch", 'echo "sbatch: error: invalid partition" >&2\nexit 1\n')
     failed = _script("submit.py", str(_jobscript(tmp_path, single)), cwd=tmp_path, bin_dir=bin_dir)
     assert failed.returncode == 1 and "invalid partition" in failed.stderr
+    (tmp_path / "other.sh").write_text("#!/bin/sh\necho not a job script\n")
+    other = _script("submit.py", str(tmp_path / "other.sh"), cwd=tmp_path, bin_dir=bin_dir)
+    assert other.returncode == 2 and "no '# properties = ' line" in other.stderr
 
 
 def test_status_reads_the_queue_once_per_round_and_a_finished_job_once(tmp_path: Path) -> None:
     """Queued jobs are running (one squeue for a round of questions); a job no longer
     queued is success or failed by sacct, or by scontrol where sacct has no answer; a job
-    nobody knows is failed, with the reason on stderr."""
+    SLURM says it does not know is failed, with the reason on stderr, as is a job that ended
+    badly (its state and SLURM log named)."""
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
     calls = tmp_path / "calls"
@@ -215,24 +223,47 @@ def test_status_reads_the_queue_once_per_round_and_a_finished_job_once(tmp_path:
     _fake(bin_dir, "sacct", f'echo sacct >> {calls}\ncase "$5" in\n'
           '  21) echo COMPLETED ;;\n  22) echo "CANCELLED by 0" ;;\n  23) echo OUT_OF_MEMORY ;;\n'
           "  *) exit 1 ;;\nesac\n")  # fmt: skip
+    unknown = 'echo "slurm_load_jobs error: Invalid job id specified" >&2; exit 1'
     _fake(bin_dir, "scontrol", 'case "$4" in\n  31) echo "JobId=31 JobState=TIMEOUT Reason=x" ;;\n'
-          '  32) echo "JobId=32 JobState=COMPLETED" ;;\n  *) exit 1 ;;\nesac\n')  # fmt: skip
-    expected = {"11": "running", "12": "running", "21": "success", "22": "failed",
-                "23": "failed", "31": "failed", "32": "success", "99": "failed"}  # fmt: skip
-    for jobid, verdict in expected.items():
-        done = _script("status.py", jobid, cwd=tmp_path, bin_dir=bin_dir)
-        assert done.returncode == 0 and done.stdout.strip() == verdict, (jobid, done)
-        assert bool(done.stderr) == (verdict == "failed"), done.stderr
+          f'  32) echo "JobId=32 JobState=COMPLETED" ;;\n  *) {unknown} ;;\nesac\n')  # fmt: skip
     log = tmp_path / paths.log("slurm") / "rollouts-r0-eta0-seed0" / "23.log"
     log.parent.mkdir(parents=True)
     log.write_text("oom-kill event\n")
-    told = _script("status.py", "23", cwd=tmp_path, bin_dir=bin_dir).stderr
-    where = log.relative_to(tmp_path)
-    assert told.strip() == f"status.py: SLURM job 23 ended OUT_OF_MEMORY; its log: {where}"
+    expected = {"11": "running", "12": "running", "21": "success", "22": "failed",
+                "23": "failed", "31": "failed", "32": "success", "99": "failed"}  # fmt: skip
+    one_round = {"CAPE_SLURM_ROUND_GAP": "600"}
+    for jobid, verdict in expected.items():
+        done = _script("status.py", jobid, cwd=tmp_path, bin_dir=bin_dir, **one_round)
+        assert done.returncode == 0 and done.stdout.strip() == verdict, (jobid, done)
+        assert bool(done.stderr) == (verdict == "failed"), done.stderr
+        if jobid == "23":
+            where = log.relative_to(tmp_path)
+            said = f"status.py: SLURM job 23 ended OUT_OF_MEMORY; its log: {where}"
+            assert done.stderr.strip() == said
     made = calls.read_text().split()
-    assert made.count("squeue") == 1  # one round: the calls came within a second of each other
-    assert made.count("sacct") == 7  # the six jobs squeue did not list, and 23 again
-    time.sleep(1.2)  # the next round reads the queue again
-    done = _script("status.py", "11", cwd=tmp_path, bin_dir=bin_dir)
+    assert made.count("squeue") == 1  # one round
+    assert made.count("sacct") == 6  # the six jobs squeue did not list, once each
+    done = _script("status.py", "11", cwd=tmp_path, bin_dir=bin_dir, CAPE_SLURM_ROUND_GAP="0")
     assert done.stdout.strip() == "running"
-    assert calls.read_text().split().count("squeue") == 2
+    assert calls.read_text().split().count("squeue") == 2  # the next round reads it again
+
+
+def test_status_never_gives_up_on_a_job_while_slurm_does_not_answer(tmp_path: Path) -> None:
+    """A busy controller (squeue and scontrol time out, no accounting): every job is still
+    running, asked about again next round, and squeue is not asked again within the round."""
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    calls = tmp_path / "calls"
+    busy = 'echo "slurm_load_jobs error: Socket timed out on send/recv operation" >&2\nexit 1\n'
+    _fake(bin_dir, "squeue", f"echo squeue >> {calls}\n{busy}")
+    _fake(bin_dir, "scontrol", busy)
+    _fake(
+        bin_dir, "sacct", 'echo "sacct: error: Slurm accounting storage is disabled" >&2\nexit 1\n'
+    )
+    for jobid in ("11", "12"):
+        done = _script(
+            "status.py", jobid, cwd=tmp_path, bin_dir=bin_dir, CAPE_SLURM_ROUND_GAP="600"
+        )
+        assert done.returncode == 0 and done.stdout.strip() == "running", done
+        assert "asking again next round" in done.stderr
+    assert calls.read_text().split().count("squeue") == 1

@@ -7,8 +7,10 @@ a round (``seconds-between-status-checks``), and reads one word: ``running``, ``
 not one per job, the user's queue (``squeue``) is read by the round's first call into
 ``.snakemake/slurm-status.json`` and shared by the calls that follow it within ``ROUND_GAP``
 seconds of each other. A job no longer queued is looked up once in ``sacct`` (the accounting
-database), or, on a cluster that keeps none, in ``scontrol``. A job that neither knows is
-reported failed, with the reason on stderr: it cannot be waited for.
+database), or, on a cluster that keeps none, in ``scontrol``. A job that SLURM answers it does
+not know is reported failed, with the reason on stderr: it cannot be waited for. A job SLURM
+gave no answer about (a busy controller, a timeout) is reported running and asked about again
+next round, never given up on.
 """
 
 from __future__ import annotations
@@ -44,45 +46,51 @@ def verdict(state: str) -> str:
     return "running" if word in RUNNING else "failed"
 
 
-def _run(*command: str) -> str | None:
-    """The command's output, or None when it fails or is not installed."""
+def _run(*command: str) -> subprocess.CompletedProcess[str] | None:
+    """The finished command, or None when it could not run (not installed, hung 60 s)."""
     try:
-        done = subprocess.run(command, capture_output=True, text=True, timeout=60)
+        return subprocess.run(command, capture_output=True, text=True, timeout=60)
     except (OSError, subprocess.TimeoutExpired):
         return None
-    return done.stdout if done.returncode == 0 else None
 
 
-def queued(now: float) -> dict[str, str]:
-    """Job id → state of the user's queued jobs, read once per round of calls."""
+def queued(now: float) -> dict[str, str] | None:
+    """Job id → state of the user's queued jobs, read once per round of calls; None when
+    ``squeue`` gave no answer this round (a busy controller: asked again next round)."""
+    gap = float(os.environ.get("CAPE_SLURM_ROUND_GAP", ROUND_GAP))
     try:
         cached = json.loads(CACHE.read_text())
-        fresh = now - float(cached["called"]) < ROUND_GAP and now - float(cached["read"]) < MAX_AGE
-        jobs, read = dict(cached["jobs"]), float(cached["read"])
+        fresh = now - float(cached["called"]) < gap and now - float(cached["read"]) < MAX_AGE
+        jobs, read = cached["jobs"], float(cached["read"])
     except (OSError, ValueError, KeyError, TypeError):
         fresh = False
     if not fresh:
-        out = _run("squeue", "-h", "-u", getpass.getuser(), "-o", "%i|%T")
-        if out is None:
-            return {}
-        jobs, read = dict(line.split("|", 1) for line in out.split() if "|" in line), now
+        done = _run("squeue", "-h", "-u", getpass.getuser(), "-o", "%i|%T")
+        jobs, read = None, now
+        if done is not None and done.returncode == 0:
+            jobs = dict(line.split("|", 1) for line in done.stdout.split() if "|" in line)
+        elif done is not None:
+            print(f"status.py: squeue: {done.stderr.strip()}", file=sys.stderr)
     CACHE.parent.mkdir(parents=True, exist_ok=True)
     part = CACHE.with_name(f"{CACHE.name}.{os.getpid()}.part")
     part.write_text(json.dumps({"called": now, "read": read, "jobs": jobs}))
     part.replace(CACHE)  # atomic: a reader never sees half a file
-    return jobs
+    return None if jobs is None else dict(jobs)
 
 
-def final_state(jobid: str) -> str | None:
-    """A job's state from the accounting database, else from the controller's memory."""
-    out = _run("sacct", "-X", "-n", "-P", "-j", jobid, "-o", "State")
-    if out and out.strip():
-        return out.strip().splitlines()[0]
-    out = _run("scontrol", "show", "job", "-o", jobid)
-    for field in (out or "").split():
+def final_state(jobid: str) -> tuple[str | None, bool]:
+    """A job's state from the accounting database, else from the controller's memory; and
+    whether SLURM answered that it knows no such job (rather than not answering)."""
+    done = _run("sacct", "-X", "-n", "-P", "-j", jobid, "-o", "State")
+    if done is not None and done.returncode == 0 and done.stdout.strip():
+        return done.stdout.strip().splitlines()[0], False
+    done = _run("scontrol", "show", "job", "-o", jobid)
+    if done is None:
+        return None, False
+    for field in done.stdout.split():
         if field.startswith("JobState="):
-            return field.removeprefix("JobState=")
-    return None
+            return field.removeprefix("JobState="), False
+    return None, "invalid job id" in done.stderr.lower()
 
 
 def main(argv: list[str]) -> int:
@@ -90,10 +98,17 @@ def main(argv: list[str]) -> int:
         print("usage: status.py JOBID", file=sys.stderr)
         return 2
     jobid = argv[1].strip()
-    state = queued(time.time()).get(jobid) or final_state(jobid)
+    jobs = queued(time.time())
+    state, unknown = (jobs[jobid], False) if jobs and jobid in jobs else final_state(jobid)
     if state is None:
-        print(f"status.py: SLURM knows no job {jobid} (squeue, sacct, scontrol)", file=sys.stderr)
-        print("failed")
+        if jobs is not None and unknown:  # the queue answered without it, and so did scontrol
+            print(f"status.py: SLURM knows no job {jobid} (squeue, sacct, scontrol)",
+                  file=sys.stderr)  # fmt: skip
+            print("failed")
+        else:  # no answer: the job is not given up on a busy controller's word
+            print(f"status.py: SLURM did not say how job {jobid} is; asking again next round",
+                  file=sys.stderr)  # fmt: skip
+            print("running")
         return 0
     said = verdict(state)
     if said == "failed":  # why, and where SLURM's own log of the job is

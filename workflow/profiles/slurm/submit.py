@@ -3,20 +3,23 @@
 
 Snakemake's cluster-generic executor calls ``submit.py JOBSCRIPT``; the job script's second
 line holds the job's properties (JSON). This turns them into one ``sbatch`` call and prints
-the SLURM job id. Resources read (each optional but the first three, which the profile's
-``default-resources`` give every job):
+the SLURM job id. Resources read (each optional; without ``runtime`` or ``mem_mb``, which the
+profile's ``default-resources`` give every job, the cluster's defaults apply):
 
-  runtime (minutes), mem_mb, threads (a group job: the CPUs its widest layer uses),
-  slurm_account, slurm_partition, slurm_qos, slurm_constraint, slurm_extra (more sbatch
-  options, one string).
+  runtime (minutes; one more is asked for the job's own Snakemake to start), mem_mb, threads
+  (a group job: the CPUs its widest layer uses), slurm_account, slurm_partition, slurm_qos,
+  slurm_constraint, slurm_extra (more sbatch options, one string).
 
-A group job (many rollouts) is one submission named after its group; its SLURM log goes to
+The job script's Snakemake is given the job's CPUs (``--cores <threads>``, not ``all``), so a
+group runs as many rollouts at once as it asked CPUs for, whatever the node shows. A group job
+(many rollouts) is one submission named after its group; its SLURM log goes to
 ``results/logs/slurm/<group or rule>/<slurm job id>.log``.
 """
 
 from __future__ import annotations
 
 import json
+import re
 import shlex
 import subprocess
 import sys
@@ -24,6 +27,8 @@ from pathlib import Path
 from typing import Any
 
 LOG_ROOT = Path("results") / "logs" / "slurm"  # cape.layout.paths.log("slurm"), checked by a test
+START_MINUTES = 1  # the job's own Snakemake: parsing the workflow before the first rule
+ALL_CORES = re.compile(r"--cores '?all'?(?=\s)")
 OPTIONAL = {
     "slurm_account": "--account",
     "slurm_partition": "--partition",
@@ -45,6 +50,14 @@ def job_name(props: dict[str, Any]) -> str:
     return str(props.get("groupid") if props.get("type") == "group" else props.get("rule"))
 
 
+def _whole(value: Any) -> int | None:
+    """A resource as a whole number, or None (missing, or Snakemake's "<TBD>")."""
+    try:
+        return int(value)
+    except (TypeError, ValueError):
+        return None
+
+
 def sbatch_command(props: dict[str, Any], jobscript: Path) -> list[str]:
     """The ``sbatch`` call for one job (or group job) of the given properties."""
     resources = props.get("resources", {})
@@ -54,10 +67,12 @@ def sbatch_command(props: dict[str, Any], jobscript: Path) -> list[str]:
         "--parsable",
         f"--job-name=cape-{name}",
         f"--output={LOG_ROOT / name / '%j.log'}",
-        f"--cpus-per-task={max(1, int(props.get('threads', 1)))}",
-        f"--mem={int(resources['mem_mb'])}",
-        f"--time={max(1, int(resources['runtime']))}",
+        f"--cpus-per-task={cpus(props)}",
     ]
+    if (memory := _whole(resources.get("mem_mb"))) is not None:
+        command.append(f"--mem={memory}")
+    if (minutes := _whole(resources.get("runtime"))) is not None:
+        command.append(f"--time={max(1, minutes) + START_MINUTES}")
     for key, option in OPTIONAL.items():
         value = resources.get(key)
         if value not in (None, ""):
@@ -68,12 +83,29 @@ def sbatch_command(props: dict[str, Any], jobscript: Path) -> list[str]:
     return [*command, str(jobscript)]
 
 
+def cpus(props: dict[str, Any]) -> int:
+    return max(1, _whole(props.get("threads")) or 1)
+
+
+def pin_cores(jobscript: Path, count: int) -> None:
+    """Have the job script's Snakemake use ``count`` cores, not all the node shows."""
+    text = jobscript.read_text()
+    if not ALL_CORES.search(text):
+        raise ValueError(f"{jobscript}: no `--cores all` in its Snakemake command to pin")
+    jobscript.write_text(ALL_CORES.sub(f"--cores {count}", text, count=1))
+
+
 def main(argv: list[str]) -> int:
     if len(argv) != 2:
         print("usage: submit.py JOBSCRIPT", file=sys.stderr)
         return 2
     jobscript = Path(argv[1])
-    props = properties(jobscript)
+    try:
+        props = properties(jobscript)
+        pin_cores(jobscript, cpus(props))
+    except (OSError, ValueError) as exc:
+        print(f"submit.py: {exc}", file=sys.stderr)
+        return 2
     (LOG_ROOT / job_name(props)).mkdir(parents=True, exist_ok=True)  # sbatch makes no folders
     done = subprocess.run(sbatch_command(props, jobscript), capture_output=True, text=True)
     if done.returncode != 0:
