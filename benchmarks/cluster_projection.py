@@ -28,8 +28,10 @@ from __future__ import annotations
 
 import argparse
 import heapq
+import math
 import sys
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -146,24 +148,42 @@ def hours(seconds: float) -> str:
     return f"{minutes // 60}:{minutes % 60:02d}"
 
 
+def _bounded(kind: type, low: float, high: float) -> Callable[[str], float]:
+    """An argparse type: a finite number of ``kind`` from ``low`` to ``high``."""
+
+    def parse(text: str) -> float:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        if not math.isfinite(value) or not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{text} is not from {low:g} to {high:g}")
+        return value
+
+    return parse
+
+
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--draws", type=int, nargs="+", default=[3, 10, 30], help="R")
-    parser.add_argument("--nodes", type=int, nargs="+", default=[1, 8, 64], help="N")
-    parser.add_argument("--cores", type=int, default=2, help="cores of one node (C)")
-    parser.add_argument("--queue-wait", type=float, default=0.0, help="s a job queues")
+    from cape.cli import OneLineParser
+
+    parser = OneLineParser(description=__doc__.split("\n\n")[0])
+    count = _bounded(int, 1, 1000)
+    parser.add_argument("--draws", type=count, nargs="+", default=[3, 10, 30], help="R")
+    parser.add_argument("--nodes", type=_bounded(int, 1, 100_000), nargs="+", default=[1, 8, 64],
+                        help="N")  # fmt: skip
+    parser.add_argument("--cores", type=_bounded(int, 1, 1024), default=2, help="C, per node")
+    parser.add_argument("--queue-wait", type=_bounded(float, 0, 86_400), default=0.0,
+                        help="s a job queues")  # fmt: skip
     parser.add_argument(
         "--run-overhead",
-        type=float,
+        type=_bounded(float, 0, 3600),
         default=0.1,
         help="s per run in a group beyond its timing.json (measured: 0.05–0.08)",
     )
-    parser.add_argument("--group-overhead", type=float, default=2.0,
+    parser.add_argument("--group-overhead", type=_bounded(float, 0, 3600), default=2.0,
                         help="s per submission: its Snakemake process (measured: 1–2)")  # fmt: skip
     add_config(parser)
     args = parser.parse_args()
-    if min(args.draws + args.nodes + [args.cores]) < 1 or args.queue_wait < 0:
-        parser.error("--draws, --nodes and --cores are at least 1, --queue-wait at least 0")
     config = study_config(args)
     replicates = int(config["training"]["replicates"])
     if replicates < 2:

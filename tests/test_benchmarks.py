@@ -226,6 +226,13 @@ def test_a_partial_study_is_not_projected_and_told_what_it_lacks(study: Path) ->
     assert "runs not computed" in result.stdout, result.stdout
 
 
+def test_a_projection_of_impossible_numbers_is_one_line(study: Path) -> None:
+    for option, value in (("--queue-wait", "nan"), ("--run-overhead", "-5"),
+                          ("--draws", "100000"), ("--nodes", "0")):  # fmt: skip
+        result = benchmark("cluster_projection.py", option, value, cwd=study)
+        one_message(result, f"argument {option}: {value}")
+
+
 def test_the_projection_schedules_as_computed_by_hand() -> None:
     """Draw 0: DPM's training (10 s) then its retry (5 s), EPM's (8 s), a DPM solver (2 s),
     one group of two 1 s runs (+ 0.5 s each, + 1 s per group). On one slot the jobs go one
