@@ -246,6 +246,14 @@ def test_status_reads_the_queue_once_per_round_and_a_finished_job_once(tmp_path:
     done = _script("status.py", "11", cwd=tmp_path, bin_dir=bin_dir, CAPE_SLURM_ROUND_GAP="0")
     assert done.stdout.strip() == "running"
     assert calls.read_text().split().count("squeue") == 2  # the next round reads it again
+    for bad in ("", "12; rm -rf x", "abc"):  # an empty id would make scontrol list every job
+        refused = _script("status.py", bad, cwd=tmp_path, bin_dir=bin_dir)
+        assert refused.returncode == 2 and refused.stdout == "", refused
+        assert len(refused.stderr.splitlines()) == 1 and "usage" in refused.stderr
+    (tmp_path / ".snakemake" / "slurm-status.json").unlink()
+    (tmp_path / ".snakemake" / "slurm-status.json").mkdir()  # a cache it cannot write
+    done = _script("status.py", "11", cwd=tmp_path, bin_dir=bin_dir)
+    assert done.returncode == 0 and done.stdout.strip() == "running", done
 
 
 def test_status_never_gives_up_on_a_job_while_slurm_does_not_answer(tmp_path: Path) -> None:

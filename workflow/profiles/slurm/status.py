@@ -18,6 +18,7 @@ from __future__ import annotations
 import getpass
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -26,6 +27,7 @@ from pathlib import Path
 from submit import LOG_ROOT  # this folder's submit.py: where SLURM's logs of the jobs go
 
 CACHE = Path(".snakemake") / "slurm-status.json"
+JOB_ID = re.compile(r"[0-9]+(_[0-9]+)?")
 ROUND_GAP = 1.0  # s: a call later than this after the one before starts a new round
 MAX_AGE = 30.0  # s: a snapshot is read again after this long, even within one round
 SUCCESS = {"COMPLETED"}
@@ -71,10 +73,13 @@ def queued(now: float) -> dict[str, str] | None:
             jobs = dict(line.split("|", 1) for line in done.stdout.split() if "|" in line)
         elif done is not None:
             print(f"status.py: squeue: {done.stderr.strip()}", file=sys.stderr)
-    CACHE.parent.mkdir(parents=True, exist_ok=True)
     part = CACHE.with_name(f"{CACHE.name}.{os.getpid()}.part")
-    part.write_text(json.dumps({"called": now, "read": read, "jobs": jobs}))
-    part.replace(CACHE)  # atomic: a reader never sees half a file
+    try:  # the cache only saves queries: a folder that will not hold it costs one per call
+        CACHE.parent.mkdir(parents=True, exist_ok=True)
+        part.write_text(json.dumps({"called": now, "read": read, "jobs": jobs}))
+        part.replace(CACHE)  # atomic: a reader never sees half a file
+    except OSError:
+        part.unlink(missing_ok=True)
     return None if jobs is None else dict(jobs)
 
 
@@ -94,10 +99,10 @@ def final_state(jobid: str) -> tuple[str | None, bool]:
 
 
 def main(argv: list[str]) -> int:
-    if len(argv) != 2:
-        print("usage: status.py JOBID", file=sys.stderr)
+    jobid = argv[1].strip() if len(argv) == 2 else ""
+    if not JOB_ID.fullmatch(jobid):  # an empty id would make scontrol list every job
+        print("usage: status.py JOBID (a SLURM job id, as submit.py printed it)", file=sys.stderr)
         return 2
-    jobid = argv[1].strip()
     jobs = queued(time.time())
     state, unknown = (jobs[jobid], False) if jobs and jobid in jobs else final_state(jobid)
     if state is None:

@@ -54,7 +54,7 @@ def _whole(value: Any) -> int | None:
     """A resource as a whole number, or None (missing, or Snakemake's "<TBD>")."""
     try:
         return int(value)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         return None
 
 
