@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from cape.errors import CapeError
-from cape.models.draws import Outcome, choose_training, read_outcome, reliability
+from cape.models.draws import Outcome, choose_training, deciding_cap, read_outcome, reliability
 
 
 def _outcomes(passes: str) -> dict[int, Outcome]:
@@ -86,6 +86,26 @@ def test_a_draws_first_question_is_its_own_training_so_draws_are_planned_side_by
     with pytest.raises(PendingError):
         choose_training(2, 8, partly)
     assert asked[-1] == 3 and set(asked[:-1]) <= {0, 1, 2}
+
+
+def test_the_deciding_cap_makes_the_same_choice_for_every_history() -> None:
+    """For every pass/fail history of up to 8 trainings, every draw and every cap: the draw
+    chosen under its deciding cap is the same (index, trained, trainings consulted, cap
+    reached), and a draw that found its training keeps it under any larger cap."""
+    import itertools
+
+    for n in range(1, 9):
+        for passes in itertools.product((True, False), repeat=n):
+            outcomes = [Outcome(k, ok) for k, ok in enumerate(passes)]
+            for cap in range(1, n + 1):
+                for r in range(cap):
+                    choice = choose_training(r, cap, outcomes.__getitem__)
+                    least = deciding_cap(choice, cap)
+                    assert least <= cap
+                    assert choose_training(r, least, outcomes.__getitem__) == choice
+                    if not choice.cap_reached:
+                        for larger in range(cap, n + 1):
+                            assert choose_training(r, larger, outcomes.__getitem__) == choice
 
 
 def test_at_the_cap_the_failed_trainings_stand_in_flagged() -> None:

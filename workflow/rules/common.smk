@@ -13,7 +13,7 @@ from cape.controllers import controller_class
 from cape.closedloop.disturbances import validate_sources
 from cape.controllers.base import validate_settings
 from cape.locks import clear_stale_locks
-from cape.models.draws import choose_training, default_max_trainings, read_outcome
+from cape.models.draws import choose_training, deciding_cap, default_max_trainings, read_outcome
 from cape.models.registry import model_class
 from cape.layout import paths
 from cape.layout.names import TRUTH, PlantName, models_read, plant_names
@@ -132,11 +132,8 @@ def draw_choice(wildcards):
 
 
 def draw_max_trainings(wildcards):
-    """The cap a draw is made under: training.max_trainings when the draw reached it, else the
-    least cap that makes the same choice. A cap raised with training.replicates thus redoes
-    only the draws it can change, never one that found its training."""
-    choice = draw_choice(wildcards)
-    return MAX_TRAININGS if choice.cap_reached else choice.index + 1
+    """The cap a draw is made under (cape.models.draws.deciding_cap): more draws redo no old one."""
+    return deciding_cap(draw_choice(wildcards), MAX_TRAININGS)
 
 
 def draw_inputs(wildcards):

@@ -128,6 +128,14 @@ def choose_training(
     return Choice(replicate, stand_in, False, _upto(seen, max_trainings - 1), True)
 
 
+def deciding_cap(choice: Choice, max_trainings: int) -> int:
+    """The cap that decided ``choice``: ``max_trainings`` when the choice reached it, else the
+    least cap that makes the same choice (its index + 1), so that a draw which found its
+    training is the same draw under any larger cap (raising training.replicates, and with it
+    the default cap, redoes none)."""
+    return max_trainings if choice.cap_reached else choice.index + 1
+
+
 def _upto(seen: Mapping[int, Outcome], last: int) -> tuple[Outcome, ...]:
     return tuple(seen[k] for k in range(last + 1))
 
