@@ -21,6 +21,7 @@ include: "workflow/rules/reference.smk"
 include: "workflow/rules/rollouts.smk"
 include: "workflow/rules/figures.smk"
 include: "workflow/rules/study.smk"
+include: "workflow/rules/question.smk"
 
 
 rule all:

@@ -241,8 +241,9 @@ def test_one_draw_says_its_verdicts_are_this_draws() -> None:
     assert rows.loc["EPM − DPM", "verdict"] == CONTRADICTED  # +0.5 s ± 0.16 over the seeds
     shown = presented(table)
     assert list(shown.columns) == [
-        *("claim", "comparison", "paper", "ours", "ci95_low", "ci95_high", "p"),
-        *("verdict (this training draw)", "verdict FDR (this training draw)", "why"),
+        *("claim", "comparison", "paper", "ours", "ci95_low", "ci95_high", "p", "margin"),
+        *("p equivalence", "verdict (this training draw)", "verdict FDR (this training draw)"),
+        "why",
     ]
     assert set(effects["scope"]) == {"rep0"}
     page = at_a_glance(table, runs)
@@ -350,8 +351,8 @@ def test_the_ground_truth_plants_rows_are_judged_the_same_way_beside_the_papers(
     assert (table.loc[table["setting"] != GROUND_TRUTH, "setting"] == "paper").all()
     assert "setting" in presented(table)
     page = at_a_glance(table, _laps([0, 1, 2]))
-    assert "| The paper's claims (learned plants; models; bicycle): 1 | 1 | 0 | 0 | 0 |" in page
-    assert "| On the ground-truth plant (CAPE's own): 3 | 1 | 0 | 2 | 0 |" in page
+    assert "| The paper's claims (learned plants; models; bicycle): 1 | 1 | 0 | 0 | 0 | 0 |" in page
+    assert "| On the ground-truth plant (CAPE's own): 3 | 1 | 0 | 0 | 2 | 0 |" in page
     alone, _ = evaluate_claims(Evidence(_laps([0])), ClaimSet(model=[], bicycle=None))
     assert "setting" not in presented(alone)  # the paper's rows alone: no column to tell
 

@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from typing import NoReturn
 
 from cape import interrupt
-from cape.cli import data, models, runs, study  # noqa: F401  (they register their commands)
+from cape.cli import data, models, question, runs, study  # noqa: F401  (they register their commands)
 from cape.cli.common import COMMANDS, STARTED
 from cape.errors import CapeError, one_line
 

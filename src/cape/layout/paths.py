@@ -58,6 +58,13 @@ REPLICATES_SCOPE = _under("replicates")
 STUDY_RUNS = "{scope}/study/runs.parquet"
 STUDY_SUMMARY = "{scope}/study/summary.parquet"
 GLANCE = "{scope}/RESULTS.md"
+QUESTION = _under("question")
+"""The ground-truth question in stages (`cape question`): its stage plan, looks and report."""
+QUESTION_STAGE = f"{QUESTION}/stage.yaml"
+QUESTION_LOOKS = f"{QUESTION}/looks.csv"
+QUESTION_STATE = f"{QUESTION}/looks.json"
+QUESTION_REPORT = f"{QUESTION}/RESULTS.md"
+QUESTION_COMPONENTS = f"{QUESTION}/variance_components.csv"
 
 
 def dataset(track: str) -> str:

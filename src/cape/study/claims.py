@@ -345,3 +345,63 @@ MODEL: tuple[ModelClaim, ...] = (
     ),
 )
 """Model complexity (table 1) and open-loop error (table 4), in the paper's order."""
+
+
+LOWER_IS_BETTER = {
+    "lap_time_penalised": True,
+    "mean_abs_ex_penalised": True,
+    "mean_abs_ey_penalised": True,
+    "mean_speed": False,
+    FAILURES: True,
+}
+"""The question's metrics, and which way is better on each."""
+
+
+def _better(models: Sequence[str], metric: str) -> tuple[Pair, ...]:
+    """Every pair (a, b) of ``models`` in their order, tested as a better than b on
+    ``metric``: the side is the sign a better a gives the effect a − b (or a vs b)."""
+    side = -1.0 if LOWER_IS_BETTER[metric] else 1.0
+    sign = "<" if side < 0 else ">"
+    return tuple(
+        Pair(a, b, side, f"none (the question's); tested: {a.upper()} {sign} {b.upper()}")
+        for a, b in itertools.combinations(models, 2)
+    )
+
+
+def question_claims(models: Sequence[str]) -> tuple[ClosedLoopClaim, ...]:
+    """The ground-truth question's claims (``cape question``): the scorecard's five ground-truth
+    comparisons (the adaptive NMPC's penalised lap time over η; the NMPCs' e_x, e_y and speed at
+    η = 1, relative; their failures per seed) for every pair of ``models``, each tested as the
+    earlier model better than the later (for EPM, DDM, DPM: the paper's side, as in
+    ``GROUND_TRUTH_CLAIMS``)."""
+    nmpcs_at_1 = both(at_eta(1.0), controllers(NMPCS))
+    return (
+        ClosedLoopClaim(
+            "adaptive NMPC lap time, penalised, mean over η (s)",
+            controllers(["anmpc"]),
+            "lap_time_penalised",
+            _better(models, "lap_time_penalised"),
+            unit=" s",
+            setting=GROUND_TRUTH,
+        ),
+        *(
+            ClosedLoopClaim(
+                f"η = 1, mean over the NMPCs: {metric} (%)",
+                nmpcs_at_1,
+                metric,
+                _better(models, metric),
+                effect=RELATIVE,
+                unit=" %",
+                setting=GROUND_TRUTH,
+            )
+            for metric in ("mean_abs_ex_penalised", "mean_abs_ey_penalised", "mean_speed")
+        ),
+        ClosedLoopClaim(
+            "NMPC-family failures per seed (3 NMPCs × every η)",
+            controllers(NMPCS),
+            FAILURES,
+            _better(models, FAILURES),
+            per_seed="sum",
+            setting=GROUND_TRUTH,
+        ),
+    )

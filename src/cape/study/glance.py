@@ -15,7 +15,7 @@ from cape.layout import paths
 from cape.study.claims import GROUND_TRUTH
 from cape.study.scorecard import NOT_EVALUATED, draws_of, holds_for_every_network, presented
 from cape.study.tables import plant_failures
-from cape.study.verdicts import CONTRADICTED, HOLDS, INCONCLUSIVE
+from cape.study.verdicts import CONTRADICTED, EQUIVALENT, HOLDS, INCONCLUSIVE
 from cape.tables import number_formats, to_markdown
 
 REPLICATES_COMMAND = "snakemake --cores 2 replicates"
@@ -39,7 +39,7 @@ def _two_settings(table: pd.DataFrame) -> list[str]:
     sets = [("paper", "The paper's claims (learned plants; models; bicycle)")]
     if setting.eq(GROUND_TRUTH).any():
         sets.append((GROUND_TRUTH, "On the ground-truth plant (CAPE's own)"))
-    kinds = (HOLDS, CONTRADICTED, INCONCLUSIVE, NOT_EVALUATED)
+    kinds = (HOLDS, CONTRADICTED, EQUIVALENT, INCONCLUSIVE, NOT_EVALUATED)
     lines = ["| rows | " + " | ".join(kinds) + " |", "|---" * (len(kinds) + 1) + "|"]
     for key, label in sets:
         verdicts = table.loc[setting.eq(key), "verdict"]
@@ -70,8 +70,10 @@ def _intro(table: pd.DataFrame, runs: pd.DataFrame) -> list[str]:
     common = (
         f"{len(runs)} closed-loop runs of the paper's study, {seeds} disturbance seed(s); table 8 "
         "(`table08_scorecard.md`). A verdict is `holds` when the 95 % interval of the effect "
-        "lies wholly on the paper's side, `contradicted` when wholly on the other, "
-        "`inconclusive` when it contains zero (docs/study.md). Nothing is tuned toward the paper."
+        "lies wholly on the paper's side, `contradicted` when wholly on the other, `equivalent` "
+        "(no practical difference) when the two one-sided tests put it inside the margin its "
+        "metric has (`scorecard.margins`, docs/question.md), `inconclusive` otherwise "
+        "(docs/study.md). Nothing is tuned toward the paper."
     )
     if len(draws) <= 1:
         return [
@@ -121,6 +123,9 @@ def at_a_glance(
         "",
     ]
     lines += [*_bullets(table, verdicts.eq(CONTRADICTED)), ""]
+    equivalent = int(verdicts.eq(EQUIVALENT).sum())
+    lines += [f"## No practical difference {scope}: {equivalent} of {len(table)} rows", ""]
+    lines += [*_bullets(table, verdicts.eq(EQUIVALENT)), ""]
     lines += [
         f"## Inconclusive {scope}: {int(verdicts.eq(INCONCLUSIVE).sum())} of {len(table)} rows",
         "",

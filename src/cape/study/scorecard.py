@@ -49,6 +49,7 @@ from cape.study.table8 import (
 )
 from cape.study.verdicts import (
     CONTRADICTED,
+    EQUIVALENT,
     HOLDS,
     INCONCLUSIVE,
     VERDICTS,
@@ -56,10 +57,12 @@ from cape.study.verdicts import (
     class_interval,
     draw_effects,
     draws_needed,
+    equivalence_p,
     exact_verdict,
     fdr_verdicts,
     interval,
     verdict,
+    with_equivalence,
 )
 
 __all__ = [
@@ -92,11 +95,15 @@ class Settings:
 
     power: float = 0.8
     most_draws: int = 100
+    margins: Mapping[str, float] = field(default_factory=dict)
+    """Metric → the margin of no practical difference (config ``scorecard.margins``): a row of
+    that metric whose effect the two one-sided tests put inside ±margin is ``equivalent``."""
 
     @classmethod
     def from_config(cls, section: Mapping[str, Any] | None) -> Settings:
         section = section or {}
-        return cls(float(section.get("power", 0.8)), int(section.get("most_draws", 100)))
+        margins = {str(k): float(v) for k, v in (section.get("margins") or {}).items()}
+        return cls(float(section.get("power", 0.8)), int(section.get("most_draws", 100)), margins)
 
 
 @dataclass(frozen=True)
@@ -134,7 +141,7 @@ class _Evaluation:
     spans: list[dict]
 
 
-def _per_seed(runs: pd.DataFrame, claim: ClosedLoopClaim) -> dict[tuple[str, int], pd.Series]:
+def per_seed(runs: pd.DataFrame, claim: ClosedLoopClaim) -> dict[tuple[str, int], pd.Series]:
     """(model, replicate) → the claim's value per seed over the runs it reads."""
     value = (
         (~runs["success"].astype(bool)).astype(float)
@@ -151,7 +158,7 @@ def _per_seed(runs: pd.DataFrame, claim: ClosedLoopClaim) -> dict[tuple[str, int
     return out
 
 
-def _pair_effects(
+def pair_effects(
     per: Mapping[tuple[str, int], pd.Series], pair: Pair, claim: ClosedLoopClaim
 ) -> Effects:
     """Replicate → the effect of model a against b on their common seeds."""
@@ -194,7 +201,9 @@ def _failed_note(context: Context, pair: Pair) -> str:
     )
 
 
-def _verdicts(ev: _Evaluation, effects: Effects, pair: Pair, row: ClaimRow) -> dict[str, Interval]:
+def _verdicts(
+    ev: _Evaluation, effects: Effects, pair: Pair, row: ClaimRow, margin: float | None = None
+) -> dict[str, Interval]:
     """Fill ``row``'s interval and verdicts: the headline over the draws that trained (or this
     draw's seeds), per draw over its seeds, over every draw (failed trainings included), and
     the draws needed when undecided; returns the intervals by scope (figure 13)."""
@@ -217,6 +226,13 @@ def _verdicts(ev: _Evaluation, effects: Effects, pair: Pair, row: ClaimRow) -> d
             spans[replicate_name(r)] = span
     row.verdict = verdict(headline, sign)
     row.verdict_all = verdict(every, sign)
+    if margin is not None:  # no practical difference: TOST over the interval's own values
+        row.margin = margin
+        row.p_equivalence = equivalence_p(kept, margin, study)
+        row.verdict = with_equivalence(row.verdict, row.p_equivalence, LEVEL)
+        row.verdict_all = with_equivalence(
+            row.verdict_all, equivalence_p(effects, margin, study), LEVEL
+        )
     settings = ev.settings
     row.draws_needed = (
         draws_needed(headline, LEVEL, settings.power, settings.most_draws)
@@ -238,6 +254,9 @@ def _why(ev: _Evaluation, row: ClaimRow, pair: Pair, causes: Sequence[str]) -> s
     )
     if row.verdict == HOLDS:
         return fewer
+    if row.verdict == EQUIVALENT:
+        inside = f"no practical difference: the effect lies within ±{row.margin:g}"
+        return "; ".join(c for c in (inside, fewer) if c)
     notes = [c for c in (fewer, *causes, _failed_note(ev.context, pair)) if c]
     counted = [r for r in ev.replicates if r in used] or list(ev.replicates)  # the interval's
     per = [row.per_draw[r].verdict if r in row.per_draw else INCONCLUSIVE for r in counted]
@@ -299,12 +318,12 @@ def _not_evaluated(
 
 def _closed_loop(ev: _Evaluation, runs: pd.DataFrame, claim: ClosedLoopClaim) -> None:
     selected = claim.select(runs)
-    per = _per_seed(selected, claim) if len(selected) else {}
+    per = per_seed(selected, claim) if len(selected) else {}
     cells = len(selected[["controller", "eta"]].drop_duplicates()) if len(selected) else 0
     name = claim.name.format(cells=cells)
     for pair in claim.pairs:
         comparison = f"{pair.a.upper()}{claim.effect.joiner}{pair.b.upper()}"
-        effects = _pair_effects(per, pair, claim)
+        effects = pair_effects(per, pair, claim)
         if not any(effects.values()):
             missing = [m.upper() for m in (pair.a, pair.b) if not any(k[0] == m for k in per)]
             if len(selected) and not missing:
@@ -317,7 +336,7 @@ def _closed_loop(ev: _Evaluation, runs: pd.DataFrame, claim: ClosedLoopClaim) ->
             _not_evaluated(ev, name, comparison, pair.paper_text, why, claim.setting)
             continue
         row = ClaimRow(name, comparison, pair.paper_text, setting=claim.setting)
-        spans = _verdicts(ev, effects, pair, row)
+        spans = _verdicts(ev, effects, pair, row, ev.settings.margins.get(claim.metric))
         used = row.used
         values = _both(pair, _mean_over(per, pair.a, used), _mean_over(per, pair.b, used))
         row.ours = f"{row.estimate:.3g}{claim.unit} ({values})" if used else "–"
@@ -466,7 +485,11 @@ def _adjusted(table: pd.DataFrame) -> pd.Series:
     (Benjamini–Hochberg, cape.study.verdicts.fdr_verdicts); a row not evaluated stays so."""
     out = table["verdict"].copy()
     for _, rows in table.groupby("setting", sort=False):
-        adjusted = fdr_verdicts(rows["p"].astype(float).tolist(), rows["verdict"].tolist())
+        adjusted = fdr_verdicts(
+            rows["p"].astype(float).tolist(),
+            rows["verdict"].tolist(),
+            p_equivalence=rows["p equivalence"].astype(float).tolist(),
+        )
         out.loc[rows.index] = adjusted
     return out
 
@@ -485,8 +508,8 @@ def presented(table: pd.DataFrame) -> pd.DataFrame:
     if "setting" in table and not table["setting"].eq(GROUND_TRUTH).any():
         table = table.drop(columns=["setting"])  # the paper's rows alone: no column to tell
     if len(draws) <= 1:
-        keep = ["claim", "comparison", "paper", "ours", "ci95_low", "ci95_high", "p", "verdict",
-                "verdict FDR", "why"]  # fmt: skip
+        keep = ["claim", "comparison", "paper", "ours", "ci95_low", "ci95_high", "p", "margin",
+                "p equivalence", "verdict", "verdict FDR", "why"]  # fmt: skip
         keep = [c for c in ("setting", *keep) if c in table]
         return table[keep].rename(
             columns={

@@ -2,11 +2,13 @@
 to its effect and verdict, and ``frame`` makes the table, the one place its columns are named.
 
 Columns: ``setting``, ``claim``, ``comparison``, ``paper``, ``ours``, ``ci95_low``,
-``ci95_high``, ``estimate``, ``draws``, ``p``, ``effect rep<r>`` and ``verdict rep<r>`` per
-draw, ``verdict`` (over the draws that trained: the headline), ``verdict FDR`` (the same,
-adjusted for the false-discovery rate over the setting's rows), ``verdict all draws`` (failed
-trainings included), ``draws needed``, ``why``. The table keeps its draws in
-``DataFrame.attrs["draws"]`` (``draws_of``), so nothing reads them back out of column names.
+``ci95_high``, ``estimate``, ``draws``, ``p``, ``margin`` (of no practical difference, where
+its metric has one), ``p equivalence`` (the two one-sided tests against it), ``effect rep<r>``
+and ``verdict rep<r>`` per draw, ``verdict`` (over the draws that trained: the headline),
+``verdict FDR`` (the same, adjusted for the false-discovery rate over the setting's rows),
+``verdict all draws`` (failed trainings included), ``draws needed``, ``why``. The table keeps
+its draws in ``DataFrame.attrs["draws"]`` (``draws_of``), so nothing reads them back out of
+column names.
 """
 
 from __future__ import annotations
@@ -61,6 +63,8 @@ class ClaimRow:
     ci95_high: float = math.nan
     draws: float = math.nan
     p: float = math.nan
+    margin: float = math.nan
+    p_equivalence: float = math.nan
     per_draw: dict[int, DrawResult] = field(default_factory=dict)
     verdict: str = ""
     verdict_all: str = ""
@@ -86,6 +90,8 @@ class ClaimRow:
             "estimate": self.estimate,
             "draws": self.draws,
             "p": self.p,
+            "margin": self.margin,
+            "p equivalence": self.p_equivalence,
             **{effect_column(r): self.per_draw.get(r, DrawResult()).effect for r in replicates},
             **{verdict_column(r): self.draw_verdict(r) for r in replicates},
             "verdict": self.verdict,

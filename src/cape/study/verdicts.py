@@ -34,7 +34,10 @@ import numpy as np
 from scipy import stats
 
 HOLDS, CONTRADICTED, INCONCLUSIVE = "holds", "contradicted", "inconclusive"
-VERDICTS = (HOLDS, CONTRADICTED, INCONCLUSIVE)
+EQUIVALENT = "equivalent"
+"""No practical difference: the two one-sided tests put the effect inside ±margin (SPEC §10,
+revision 6); only a row whose metric has a margin (config ``scorecard.margins``) can be."""
+VERDICTS = (HOLDS, CONTRADICTED, EQUIVALENT, INCONCLUSIVE)
 
 DRAWS, SEEDS, POINT, NONE = "draws", "seeds", "point", "none"
 """What an interval is taken over: the draws' effects, one draw's seeds, nothing that varies,
@@ -178,6 +181,29 @@ def combine(verdicts: Iterable[str]) -> str:
     return CONTRADICTED if CONTRADICTED in seen else INCONCLUSIVE
 
 
+def equivalence_p(effects: Mapping[int, Sequence[float]], margin: float, study_draws: int) -> float:
+    """The p-value of the two one-sided tests that the effect lies inside ±``margin``
+    (``statsmodels``' TOST, ``DescrStatsW.ttost_mean``), over the same values as
+    ``class_interval``: the draws' means, or one draw's seeds in a study of one draw. NaN where
+    that interval is a point (one value, no spread, one draw of several): no verdict."""
+    groups = _groups(effects)
+    if not groups or (study_draws >= 2 and len(groups) < 2):
+        return math.nan
+    x = np.array([g.mean() for g in groups]) if len(groups) >= 2 else groups[0]
+    if x.size < 2 or _no_spread(x):
+        return math.nan
+    from statsmodels.stats.weightstats import DescrStatsW
+
+    return float(DescrStatsW(x).ttost_mean(-margin, margin)[0])
+
+
+def with_equivalence(said: str, p_equivalence: float, level: float = 0.95) -> str:
+    """An undecided verdict becomes ``equivalent`` when the TOST rejects at 1 − ``level``."""
+    if said == INCONCLUSIVE and math.isfinite(p_equivalence) and p_equivalence < 1.0 - level:
+        return EQUIVALENT
+    return said
+
+
 def draws_needed(span: Interval, level: float = 0.95, power: float = 0.8, most: int = 100) -> str:
     """The training draws per model that would decide an effect with probability ``power`` at
     α = 1 − ``level`` if its true size were the one measured (``span``: an interval over draws),
@@ -208,19 +234,29 @@ FDR_Q = 0.05
 """The false-discovery rate each setting's family of rows is held to (SPEC §10)."""
 
 
-def fdr_verdicts(p_values: Sequence[float], verdicts: Sequence[str], q: float = FDR_Q) -> list[str]:
+def fdr_verdicts(
+    p_values: Sequence[float],
+    verdicts: Sequence[str],
+    q: float = FDR_Q,
+    p_equivalence: Sequence[float] | None = None,
+) -> list[str]:
     """Each row's verdict adjusted for the false-discovery rate over the family: a decided row
     (``holds`` or ``contradicted``) stays decided only if Benjamini–Hochberg at ``q`` rejects
     its null (``statsmodels.stats.multitest.multipletests``); the family is the rows with a
-    p-value (a row without one, an exact row or an undecided one, keeps its verdict)."""
-    out = list(verdicts)
-    tested = [i for i, p in enumerate(p_values) if p is not None and math.isfinite(p)]
-    if not tested:
-        return out
+    p-value (a row without one, an exact row or an undecided one, keeps its verdict). An
+    ``equivalent`` row stays so only if the same procedure over the rows' TOST p-values
+    (``p_equivalence``) rejects its null of a difference of at least the margin."""
     from statsmodels.stats.multitest import multipletests
 
-    reject = multipletests([p_values[i] for i in tested], alpha=q, method="fdr_bh")[0]
-    for i, rejected in zip(tested, reject, strict=True):
-        if out[i] in (HOLDS, CONTRADICTED) and not rejected:
-            out[i] = INCONCLUSIVE
+    out = list(verdicts)
+    for values, kinds in ((p_values, (HOLDS, CONTRADICTED)), (p_equivalence, (EQUIVALENT,))):
+        if values is None:
+            continue
+        tested = [i for i, p in enumerate(values) if p is not None and math.isfinite(p)]
+        if not tested:
+            continue
+        reject = multipletests([values[i] for i in tested], alpha=q, method="fdr_bh")[0]
+        for i, rejected in zip(tested, reject, strict=True):
+            if out[i] in kinds and not rejected:
+                out[i] = INCONCLUSIVE
     return out

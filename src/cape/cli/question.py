@@ -1,0 +1,223 @@
+"""``cape question``: the ground-truth question answered in stages (SPEC §10, revision 6).
+
+Stage by stage it writes the plan (results/question/stage.yaml), runs Snakemake's ``question``
+target with it (the trainings, draws, solvers and runs the stage's rows read, nothing else),
+looks at every open row (``cape.study.question``), and adds draws only to the models of rows
+still open, until every row is settled or the last stage is looked at. Killed, it resumes: a
+rerun goes through the stages again, Snakemake redoes only what is missing, and the looks are
+the same (they are computed from the runs). The report: results/question/RESULTS.md, looks.csv
+and looks.json, after every stage. How to read it: docs/question.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import subprocess
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from cape.cli.common import _claim, command
+from cape.errors import CapeError
+from cape.layout import paths
+
+DEFAULT_FILES = ("config/config.yaml", "config/question.yaml")
+
+
+def _arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--configfile",
+        nargs="+",
+        metavar="FILE",
+        default=[],
+        help="config files merged over config/config.yaml and config/question.yaml, in order "
+        "(as Snakemake's --configfile)",
+    )
+    p.add_argument(
+        "--no-question-config",
+        action="store_true",
+        help="do not merge config/question.yaml (the question's models then come from the "
+        "other files)",
+    )
+    p.add_argument("--cores", default="2", help="Snakemake's --cores for each stage (%(default)s)")
+    p.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="print the first stage's plan and Snakemake command, run nothing",
+    )
+    p.add_argument(
+        "snakemake_args",
+        nargs=argparse.REMAINDER,
+        help="after `--`: passed to every Snakemake run (e.g. -- --workflow-profile "
+        "workflow/profiles/slurm)",
+    )
+
+
+def merged_config(files: Sequence[str]) -> dict[str, Any]:
+    """The files merged in order as Snakemake merges --configfile (mappings key by key, any
+    other value replaced), then validated (the schema's defaults filled)."""
+    import yaml
+
+    from cape.config import validate_config
+
+    merged: dict[str, Any] = {}
+    for name in files:
+        path = Path(name)
+        if not path.is_file():
+            raise CapeError(f"config file {path} not found; run from the repository root")
+        try:
+            loaded = yaml.safe_load(path.read_text()) or {}
+        except yaml.YAMLError as exc:
+            raise CapeError(f"{path}: not valid YAML ({exc})") from exc
+        if not isinstance(loaded, dict):
+            raise CapeError(f"{path}: the top level must be a mapping of sections")
+        _merge(merged, loaded)
+    return validate_config(merged, " + ".join(files))
+
+
+def _merge(into: dict[str, Any], other: Mapping[str, Any]) -> None:
+    for key, value in other.items():
+        if isinstance(value, Mapping) and isinstance(into.get(key), dict):
+            _merge(into[key], value)
+        else:
+            into[key] = json.loads(json.dumps(value))
+
+
+def _snakemake(
+    files: Sequence[str], cores: str, extra: Sequence[str], log: Path, stage: int
+) -> None:
+    """Run the ``question`` target with the stage's plan; Snakemake's output goes to ``log``,
+    its progress lines to the terminal. A failed run is one CapeError naming the log."""
+    cmd = [sys.executable, "-m", "snakemake", "question", "--configfile", *files]
+    if "--cores" not in extra and "-c" not in extra:
+        cmd += ["--cores", cores]
+    cmd += list(extra)
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with open(log, "w") as out:
+        out.write("$ " + shlex.join(cmd) + "\n")
+        out.flush()
+        proc = subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1
+        )
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            out.write(line)
+            if "steps (" in line and "done" in line:
+                print(f"  stage {stage + 1}: {line.strip()}", flush=True)
+        status = proc.wait()
+    if status != 0:
+        raise CapeError(
+            f"stage {stage + 1}: Snakemake failed (exit {status}); its output, with the failed "
+            f"job and its log, is in {log}. Fix that, then run `cape question` again: it resumes"
+        )
+
+
+@command(
+    "question",
+    "the ground-truth question in stages: draws added until every row is settled",
+    _arguments,
+)
+def cmd_question(args: argparse.Namespace) -> None:
+    from cape.io import write_text
+    from cape.ownership import Output
+    from cape.study import question_report as report
+    from cape.study.question import (
+        Plan,
+        QuestionSettings,
+        RowState,
+        evaluate,
+        later_seeds,
+        next_draws,
+        run_overrides,
+    )
+
+    extra = [a for a in args.snakemake_args if a != "--"]
+    files = [*DEFAULT_FILES[: 1 if args.no_question_config else 2], *args.configfile]
+    config = merged_config(files)
+    settings = QuestionSettings.from_config(config, " + ".join(files))
+    design = settings.design()
+    states = [RowState(row) for row in settings.rows()]
+    outputs = [paths.QUESTION_STAGE, paths.QUESTION_LOOKS, paths.QUESTION_STATE,
+               paths.QUESTION_REPORT, paths.QUESTION_COMPONENTS]  # fmt: skip
+    if not args.dry_run:
+        _claim(args, *(Output(Path(p), "question report") for p in outputs))
+    draws = {m: settings.stages[0] for m in settings.models}
+    seeds_later = settings.seeds
+    started = time.perf_counter()
+    stages: list[dict[str, Any]] = []
+    components = None
+    print(
+        f"cape question: {len(states)} rows ({len(settings.claims())} metrics × "
+        f"{len(settings.claims()[0].pairs)} pairs of {', '.join(settings.models)}); looks at "
+        f"{', '.join(map(str, settings.stages))} draws per model; family-wise α "
+        f"{settings.alpha:g} (each row {design.per_row:.2g}, spent over the looks)",
+        flush=True,
+    )
+    for k, n in enumerate(settings.stages):
+        plan = Plan(draws, settings.stages[0], settings.seeds, seeds_later)
+        overrides = run_overrides(config, settings, plan)
+        stage_files = [*files, paths.QUESTION_STAGE]
+        if args.dry_run:
+            import yaml
+
+            print(yaml.safe_dump(overrides, sort_keys=False).rstrip())
+            print("$ snakemake question --configfile " + " ".join(stage_files))
+            return
+        import yaml
+
+        write_text(paths.QUESTION_STAGE, yaml.safe_dump(overrides, sort_keys=False))
+        print(
+            f"stage {k + 1}/{len(settings.stages)}: draws "
+            + ", ".join(f"{m.upper()} {d}" for m, d in draws.items())
+            + f"; seeds per draw {settings.seeds} (draws ≥ {settings.stages[0]}: {seeds_later})",
+            flush=True,
+        )
+        tick = time.perf_counter()
+        _snakemake(
+            stage_files, args.cores, extra, Path(paths.QUESTION, "logs", f"stage{k + 1}.log"), k
+        )
+        runs = report.read_stage_runs(config, settings, plan)
+        evaluate(runs, states, design, k)
+        cost = report.costs(config, settings, plan)
+        if k == 0:
+            ratio = cost.cost_ratio()
+            if ratio is None:
+                seeds_later = settings.seeds
+                components = None
+            else:
+                seeds_later, components = later_seeds(
+                    runs, states, n, settings.seeds, ratio, settings.least_seeds
+                )
+        stages.append(report.stage_record(k, n, draws, states, cost, time.perf_counter() - tick))
+        write_text(paths.QUESTION_LOOKS, report.looks_frame(states).to_csv(index=False))
+        write_text(paths.QUESTION_STATE, json.dumps({"stages": stages}, indent=1, default=str))
+        if components is not None:
+            write_text(paths.QUESTION_COMPONENTS, components.to_csv(index=False))
+        remaining = report.remaining(states, settings, draws, cost, seeds_later)
+        write_text(
+            paths.QUESTION_REPORT,
+            report.markdown(settings, design, states, stages, components, seeds_later, remaining),
+        )
+        settled = sum(s.settled for s in states)
+        print(
+            f"stage {k + 1}: {settled} of {len(states)} rows settled ("
+            + ", ".join(f"{v} {c}" for v, c in report.tally(states).items())
+            + f"); CPU so far {cost.total:,.0f} s; "
+            + (
+                f"to the cap at most {remaining:,.0f} s more CPU (≈ {remaining / 2 / 3600:.1f} h "
+                "on two cores)"
+                if settled < len(states) and k + 1 < len(settings.stages)
+                else "done"
+            ),
+            flush=True,
+        )
+        if settled == len(states):
+            break
+        if k + 1 < len(settings.stages):
+            draws = next_draws(states, draws, settings.stages[k + 1])
+    wall = time.perf_counter() - started
+    print(f"cape question: report in {paths.QUESTION_REPORT} ({wall:,.0f} s)", flush=True)

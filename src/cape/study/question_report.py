@@ -1,0 +1,326 @@
+"""What ``cape question`` reads back and reports after each stage: the stage's runs, its CPU,
+each row through the looks, and results/question/RESULTS.md (docs/question.md reads it)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from cape.layout import paths
+from cape.layout.names import replicate_name
+from cape.study.claims import NMPCS
+from cape.study.question import Plan, QuestionSettings, RowState, stage_runs
+from cape.study.sequential import (
+    CONTRADICTED,
+    EQUIVALENT,
+    HOLDS,
+    INCONCLUSIVE,
+    OPEN,
+    Design,
+)
+
+DECISIONS = (HOLDS, CONTRADICTED, EQUIVALENT, INCONCLUSIVE, OPEN)
+
+
+def draw_meta(model: str, replicate: int) -> dict[str, Any]:
+    """A draw's meta.json (``cape draw`` wrote it), or {} where there is none yet."""
+    from cape.io import read_json
+
+    path = Path(paths.model_dir(model, replicate), "meta.json")
+    if not path.is_file():
+        return {}
+    return read_json(path, "a draw's metadata", "delete the draw's folder and run again")
+
+
+def read_stage_runs(
+    config: Mapping[str, Any], settings: QuestionSettings, plan: Plan
+) -> pd.DataFrame:
+    """The stage's runs (``cape.study.aggregate.collect_runs``, each checked against the
+    networks of its draw), less those of a draw whose training failed (a model that reached
+    its cap: the stand-in is no draw of its recipe)."""
+    from cape.study.aggregate import collect_runs
+
+    studies = {settings.study: {"internal": list(settings.models)}}
+    runs = stage_runs(settings, plan)
+    pairs = [(run.study, run.folder() / "metrics.json", None, run.replicate) for run in runs]
+    frame = collect_runs(pairs, studies, paths.MODELS)
+    untrained = {
+        (m, r)
+        for m, d in plan.draws.items()
+        for r in range(d)
+        if draw_meta(m, r).get("draw", {}).get("trained") is False
+    }
+    if untrained:
+        keep = [
+            (m, int(r)) not in untrained
+            for m, r in zip(frame["model"], frame["replicate"], strict=True)
+        ]
+        frame = frame[keep]
+    return frame
+
+
+@dataclass
+class Cost:
+    """The CPU seconds the question has used: per model its trainings (every one tried, the
+    failed ones too) and draws, the stage's runs and their count, the solvers."""
+
+    trainings: dict[str, list[float]] = field(default_factory=dict)
+    tried: dict[str, int] = field(default_factory=dict)
+    failed: dict[str, int] = field(default_factory=dict)
+    draws: dict[str, int] = field(default_factory=dict)
+    runs_s: float = 0.0
+    runs: int = 0
+    solvers_s: float = 0.0
+    etas: int = 1
+    missing: list[str] = field(default_factory=list)
+
+    @property
+    def total(self) -> float:
+        return sum(sum(v) for v in self.trainings.values()) + self.runs_s + self.solvers_s
+
+    def per_draw(self, model: str) -> float:
+        """A draw's training CPU: the model's trainings (failed ones too) over its draws."""
+        spent = self.trainings.get(model, [])
+        return sum(spent) / max(1, self.draws.get(model, 0)) if spent else math.nan
+
+    def per_seed(self) -> float:
+        """One seed's runs of one model's draw: 3 NMPCs × the η grid, at the mean run's CPU."""
+        return self.runs_s / self.runs * len(NMPCS) * self.etas if self.runs else math.nan
+
+    def cost_ratio(self) -> float | None:
+        """A draw's CPU over one seed's (the mean over the models), or None unmeasured."""
+        draws = [self.per_draw(m) for m in self.trainings]
+        draws = [d for d in draws if math.isfinite(d)]
+        seed = self.per_seed()
+        if not draws or not math.isfinite(seed) or seed <= 0:
+            return None
+        return sum(draws) / len(draws) / seed
+
+
+def _cpu(path: Path) -> float | None:
+    from cape.io import read_benchmark
+
+    if not path.is_file():
+        return None
+    row = read_benchmark(path).iloc[0]
+    try:
+        value = float(row.get("cpu_time"))
+    except (TypeError, ValueError):
+        value = math.nan
+    return value if math.isfinite(value) else float(row["s"])
+
+
+def costs(config: Mapping[str, Any], settings: QuestionSettings, plan: Plan) -> Cost:
+    """What the question's draws and the stage's runs cost, from the rules' benchmark files
+    (trainings, solvers: ``cpu_time``) and each run's timing.json (its phases' wall seconds,
+    single-threaded: its CPU, near enough). A file not there is listed in ``missing``."""
+    from cape.layout.record import read_timing
+
+    cost = Cost(etas=len(settings.etas))
+    for model, d in plan.draws.items():
+        meta = draw_meta(model, d - 1)
+        consulted = meta.get("draw", {}).get("trainings", [])
+        cost.tried[model] = len(consulted)
+        cost.failed[model] = sum(not t.get("trained") for t in consulted)
+        cost.draws[model] = d
+        spent = []
+        for t in consulted:
+            tsv = Path(paths.benchmark("train", model, f"seed{int(t['seed'])}.tsv"))
+            cpu = _cpu(tsv)
+            if cpu is None:
+                cost.missing.append(str(tsv))
+            else:
+                spent.append(cpu)
+        cost.trainings[model] = spent
+        for r in range(d):
+            for controller in NMPCS:
+                tsv = Path(
+                    paths.benchmark("solvers", replicate_name(r), controller, f"{model}.tsv")
+                )
+                cost.solvers_s += _cpu(tsv) or 0.0
+    for run in stage_runs(settings, plan):
+        folder = run.folder()
+        try:
+            phases = read_timing(folder).get("job_s", {})
+        except Exception:
+            cost.missing.append(str(folder / "timing.json"))
+            continue
+        cost.runs_s += sum(
+            float(phases.get(k, 0.0)) for k in ("startup", "config", "build", "lap", "write")
+        )
+        cost.runs += 1
+    return cost
+
+
+def tally(states: Sequence[RowState]) -> dict[str, int]:
+    """How many rows stand at each decision (those that occur)."""
+    counts = {d: sum(s.decision == d for s in states) for d in DECISIONS}
+    return {d: c for d, c in counts.items() if c}
+
+
+def stage_record(
+    stage: int,
+    n: int,
+    draws: Mapping[str, int],
+    states: Sequence[RowState],
+    cost: Cost,
+    wall: float,
+) -> dict[str, Any]:
+    """One stage's line of the report."""
+    return {
+        "stage": stage + 1,
+        "look at draws": n,
+        "draws": dict(draws),
+        "trainings tried": dict(cost.tried),
+        "trainings failed": dict(cost.failed),
+        **{d: sum(s.decision == d for s in states) for d in DECISIONS},
+        "cpu_s": round(cost.total, 1),
+        "cpu missing": len(cost.missing),
+        "wall_s": round(wall, 1),
+    }
+
+
+def looks_frame(states: Sequence[RowState]) -> pd.DataFrame:
+    """Every row at every look it had: the figure's and looks.csv's table."""
+    records = []
+    for s in states:
+        for k, lk in enumerate(s.looks):
+            records.append(
+                {
+                    "claim": s.row.name,
+                    "metric": s.row.metric,
+                    "comparison": s.row.comparison,
+                    "look": k + 1,
+                    "draws": lk.draws,
+                    "estimate": lk.estimate,
+                    "low": lk.low,
+                    "high": lk.high,
+                    "equivalence_low": lk.equivalence_low,
+                    "equivalence_high": lk.equivalence_high,
+                    "margin": s.row.margin if s.row.margin is not None else math.nan,
+                    "side": s.row.pair.paper_effect,
+                    "decision": lk.decision,
+                    "why": lk.why,
+                }
+            )
+    return pd.DataFrame(records)
+
+
+def remaining(
+    states: Sequence[RowState],
+    settings: QuestionSettings,
+    draws: Mapping[str, int],
+    cost: Cost,
+    later_seeds: int,
+) -> float:
+    """The most CPU left to the cap: every model of an open row taken to the last stage's
+    draws, each new draw at this study's measured cost (training and its seeds' runs)."""
+    open_models = {m for s in states if not s.settled for m in s.row.models}
+    seed = cost.per_seed()
+    total = 0.0
+    for m in open_models:
+        per = cost.per_draw(m)
+        per = per if math.isfinite(per) else 0.0
+        per += (seed if math.isfinite(seed) else 0.0) * later_seeds
+        total += max(0, settings.stages[-1] - draws.get(m, 0)) * per
+    return total
+
+
+def _fmt(value: float, digits: int = 3) -> str:
+    return "–" if value is None or not math.isfinite(value) else f"{value:.{digits}g}"
+
+
+def markdown(
+    settings: QuestionSettings,
+    design: Design,
+    states: Sequence[RowState],
+    stages: Sequence[Mapping[str, Any]],
+    components: pd.DataFrame | None,
+    later_seeds: int,
+    remaining_cpu: float,
+) -> str:
+    """results/question/RESULTS.md: the stages, each row's decision and its intervals, where it
+    stopped and why."""
+    models = ", ".join(m.upper() for m in settings.models)
+    lines = [
+        "# The ground-truth question, in stages",
+        "",
+        f"Which learned model, inside the NMPCs, drives the ground-truth plant best: {models} "
+        "(claimed best first; each pair tested as the first better than the second) on five "
+        "closed-loop metrics. Verdicts over training draws by a group-sequential t-test "
+        f"(family-wise α {settings.alpha:g} over {design.rows} rows and every look: each row "
+        f"{design.per_row:.2g}, spent as α·(n/{design.looks[-1]})^{settings.spending:g}); "
+        "`equivalent`: the two one-sided tests put the effect inside ±margin, no practical "
+        "difference. docs/question.md says how to read it.",
+        "",
+        "## Stages",
+        "",
+        "| stage | draws per model | trainings tried (failed) | holds | contradicted | "
+        "equivalent | inconclusive | open | CPU (s) | wall (s) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for s in stages:
+        draws = ", ".join(f"{m.upper()} {d}" for m, d in s["draws"].items())
+        tried = ", ".join(
+            f"{m.upper()} {s['trainings tried'].get(m, 0)} ({s['trainings failed'].get(m, 0)})"
+            for m in s["draws"]
+        )
+        lines.append(
+            f"| {s['stage']} | {draws} | {tried} | {s[HOLDS]} | {s[CONTRADICTED]} | "
+            f"{s[EQUIVALENT]} | {s[INCONCLUSIVE]} | {s[OPEN]} | {s['cpu_s']:,.0f} | "
+            f"{s['wall_s']:,.0f} |"
+        )
+    open_rows = [s for s in states if not s.settled]
+    last = stages[-1] if stages else {}
+    if not open_rows:
+        stop = "every row is settled"
+    elif last and last.get("look at draws") == settings.stages[-1]:
+        stop = f"the cap ({settings.stages[-1]} draws per model) was reached"
+    else:
+        stop = (
+            f"the run stopped after stage {last.get('stage', 0)}; `cape question` continues it "
+            f"(at most {remaining_cpu:,.0f} s more CPU to the cap, ≈ "
+            f"{remaining_cpu / 2 / 3600:.1f} h on two cores)"
+        )
+    lines += ["", f"**Where it stopped:** {stop}.", ""]
+    lines += [
+        f"Seeds per draw: {settings.seeds} for the first {settings.stages[0]} draws, "
+        f"{later_seeds} for later ones (the two-stage optimum from the first look's variance "
+        "components, below).",
+        "",
+        "## Rows",
+        "",
+        "| claim | comparison | decision | at draws | estimate | interval (difference) | "
+        "interval (equivalence) | margin | why |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for s in states:
+        lk = s.looks[-1] if s.looks else None
+        if lk is None:
+            continue
+        margin = "–" if s.row.margin is None else f"±{s.row.margin:g}"
+        lines.append(
+            f"| {s.row.name} | {s.row.comparison} | {s.decision} | {lk.draws} | "
+            f"{_fmt(lk.estimate)} | [{_fmt(lk.low)}, {_fmt(lk.high)}] | "
+            f"[{_fmt(lk.equivalence_low)}, {_fmt(lk.equivalence_high)}] | {margin} | "
+            f"{lk.why} |"
+        )
+    if components is not None and not components.empty:
+        lines += [
+            "",
+            "## Variance components at the first look",
+            "",
+            "| claim | comparison | σ² between draws | σ² within a draw | optimal seeds |",
+            "|---|---|---|---|---|",
+        ]
+        for _, r in components.iterrows():
+            lines.append(
+                f"| {r['claim']} | {r['comparison']} | {_fmt(r['between_var'])} | "
+                f"{_fmt(r['within_var'])} | {int(r['seeds'])} |"
+            )
+    return "\n".join(lines) + "\n"
