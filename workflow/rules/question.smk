@@ -19,3 +19,30 @@ rule question:
     input:
         question_targets(),
     localrule: True
+
+
+rule notebook_question:
+    """Figure 15 and table 10: the question's rows through its looks, from the looks.csv that
+    `cape question` writes after each stage (it runs this rule when it stops)."""
+    input:
+        notebook=f"{NOTEBOOKS}/question.ipynb",
+        looks=paths.QUESTION_LOOKS,
+    output:
+        figures("question", paths.scoped(paths.QUESTION, "figures"), ".pdf"),
+        figures("question", paths.scoped(paths.QUESTION, "figures"), ".png"),
+        tables("question", paths.scoped(paths.QUESTION, "tables")),
+        notebook=paths.scoped(paths.QUESTION, "notebooks", "question.ipynb"),
+        html=paths.scoped(paths.QUESTION, "notebooks", "question.html"),
+    params:
+        nb=lambda wildcards, input: papermill_args(
+            looks_path=input.looks,
+            figure_dir=paths.scoped(paths.QUESTION, "figures"),
+            table_dir=paths.scoped(paths.QUESTION, "tables"),
+        ),
+    conda:
+        CAPE_ENV
+    log:
+        paths.scoped(paths.QUESTION, "logs", "notebook_question.log"),
+    localrule: True
+    shell:
+        run_notebook("{params.nb}")

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import re
 import shlex
 import subprocess
 import sys
@@ -88,11 +90,17 @@ def _merge(into: dict[str, Any], other: Mapping[str, Any]) -> None:
 
 
 def _snakemake(
-    files: Sequence[str], cores: str, extra: Sequence[str], log: Path, stage: int
+    files: Sequence[str],
+    cores: str,
+    extra: Sequence[str],
+    log: Path,
+    what: str,
+    target: str = "question",
 ) -> None:
-    """Run the ``question`` target with the stage's plan; Snakemake's output goes to ``log``,
-    its progress lines to the terminal. A failed run is one CapeError naming the log."""
-    cmd = [sys.executable, "-m", "snakemake", "question", "--configfile", *files]
+    """Run ``target`` (the stage's runs) with the config ``files``; Snakemake's output goes to
+    ``log``, its progress to the terminal every tenth. A failure is one CapeError naming
+    the log."""
+    cmd = [sys.executable, "-m", "snakemake", target, "--configfile", *files]
     if "--cores" not in extra and "-c" not in extra:
         cmd += ["--cores", cores]
     cmd += list(extra)
@@ -100,19 +108,23 @@ def _snakemake(
     with open(log, "w") as out:
         out.write("$ " + shlex.join(cmd) + "\n")
         out.flush()
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}  # its progress as it happens, not at exit
         proc = subprocess.Popen(
-            cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1
+            cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1, env=env
         )
         assert proc.stdout is not None
+        shown = -1
         for line in proc.stdout:
             out.write(line)
-            if "steps (" in line and "done" in line:
-                print(f"  stage {stage + 1}: {line.strip()}", flush=True)
+            done = re.search(r"(\d+) of (\d+) steps \((\d+)%\) done", line)
+            if done and (int(done[3]) // 10 > shown or done[1] == done[2]):
+                shown = int(done[3]) // 10
+                print(f"  {what}: {done[0]}", flush=True)
         status = proc.wait()
     if status != 0:
         raise CapeError(
-            f"stage {stage + 1}: Snakemake failed (exit {status}); its output, with the failed "
-            f"job and its log, is in {log}. Fix that, then run `cape question` again: it resumes"
+            f"{what}: Snakemake failed (exit {status}); its output, with the failed job and its "
+            f"log, is in {log}. Fix that, then run `cape question` again: it resumes"
         )
 
 
@@ -219,5 +231,12 @@ def cmd_question(args: argparse.Namespace) -> None:
             break
         if k + 1 < len(settings.stages):
             draws = next_draws(states, draws, settings.stages[k + 1])
+    notebook = paths.scoped(paths.QUESTION, "notebooks", "question.ipynb")
+    _snakemake(stage_files, args.cores, extra, Path(paths.QUESTION, "logs", "notebook.log"),
+               "the report's notebook", notebook)  # fmt: skip
     wall = time.perf_counter() - started
-    print(f"cape question: report in {paths.QUESTION_REPORT} ({wall:,.0f} s)", flush=True)
+    print(
+        f"cape question: report in {paths.QUESTION_REPORT}, figure 15 and table 10 in "
+        f"{notebook} ({wall:,.0f} s)",
+        flush=True,
+    )

@@ -23,7 +23,15 @@ import numpy as np
 import pandas as pd
 
 from cape.study.claims import FAILURES, NMPCS, Selection, at_eta, both, controllers
-from cape.study.verdicts import INCONCLUSIVE, POINT, class_interval, draws_needed
+from cape.study.verdicts import (
+    EQUIVALENT,
+    INCONCLUSIVE,
+    POINT,
+    class_interval,
+    draws_needed,
+    equivalence_p,
+    with_equivalence,
+)
 
 LOWER, HIGHER = "lower", "higher"
 NOT_EVALUATED = "not evaluated"
@@ -54,6 +62,24 @@ METRICS: tuple[Metric, ...] = (
            "mean_speed"),
 )  # fmt: skip
 """The leaderboard's closed-loop columns (the claims' quantities, per model)."""
+
+MARGIN_OF = {"anmpc_lap_time": "lap_time_penalised", "nmpc_failures": FAILURES}
+"""The leaderboard metrics whose effect is in the unit of a ``scorecard.margins`` entry (the
+others are absolute errors and speeds, whose margins are relative): their effect against the
+reference can be ``equivalent``."""
+
+
+def recipe(entry: Mapping[str, object]) -> str:
+    """A model's training recipe in one phrase (SPEC §4: Adam, its rate, batch and epochs): which
+    recipe made a row, as every table showing a DDM row must say (SPEC §4.2, revision 6)."""
+    train = entry.get("train") or {}
+    if not isinstance(train, Mapping):
+        return ""
+    return (
+        f"Adam lr {float(train.get('lr', math.nan)):.3g}, batch {train.get('batch_size')}, "
+        f"{train.get('epochs')} epochs"
+    )
+
 
 OPENLOOP = ("test_rmse_vx", "test_rmse_vy", "test_rmse_omega")
 COMPLEXITY = ("params_M", "inference_ms")
@@ -117,6 +143,8 @@ def leaderboard(
     most_draws: int = 100,
     failed: Mapping[int, Mapping[str, str]] | None = None,
     reliability: pd.DataFrame | None = None,
+    margins: Mapping[str, float] | None = None,
+    recipes: Mapping[str, str] | None = None,
 ) -> pd.DataFrame:
     """Table 9 for one study's ``runs`` (every draw and seed; ``model``: the model the run is
     about): one row per model of ``models`` that has runs, ranked by ``primary`` over the
@@ -135,6 +163,8 @@ def leaderboard(
     rows = []
     for model in present:
         row: dict[str, object] = {"model": model}
+        if recipes is not None:
+            row["recipe"] = recipes.get(model, "")
         for metric in METRICS:
             mine = {r: list(v) for (m, r), v in values[metric.key].items() if m == model}
             estimate, text = _span_text(mine, study_draws)
@@ -175,7 +205,10 @@ def leaderboard(
             )
             row.update(_no_effect(NO_REFERENCE, cause))
         else:
-            row.update(_against(values[primary], model, reference, power, most_draws, study_draws))
+            margin = (margins or {}).get(MARGIN_OF.get(primary, ""))
+            row.update(
+                _against(values[primary], model, reference, power, most_draws, study_draws, margin)
+            )
         rows.append(row)
     table = pd.DataFrame(rows)
     if table.empty:
@@ -204,10 +237,11 @@ def _against(
     power: float,
     most_draws: int,
     study_draws: int,
+    margin: float | None = None,
 ) -> dict[str, object]:
     """The primary metric's effect of ``model`` against ``reference``, paired on draw and seed:
-    its interval, verdict (a point decides nothing: ``why`` says why) and the draws needed
-    when undecided."""
+    its interval, verdict (a point decides nothing: ``why`` says why; ``equivalent`` when the
+    two one-sided tests put it inside ±``margin``) and the draws needed when undecided."""
     nothing = {"effect vs reference": math.nan, "ci95_low": math.nan, "ci95_high": math.nan}
     if model == reference:
         return {**nothing, "verdict vs reference": "the reference", "draws needed": "", "why": ""}
@@ -229,6 +263,10 @@ def _against(
         said, needed, why = INCONCLUSIVE, draws_needed(span, 0.95, power, most_draws), ""
     else:
         said, needed, why = (LOWER if span.high < 0 else HIGHER), "", ""
+    if margin is not None and said == INCONCLUSIVE:
+        said = with_equivalence(said, equivalence_p(effects, margin, study_draws))
+        if said == EQUIVALENT:
+            needed, why = "", f"no practical difference: within ±{margin:g}"
     fewer = (
         f"rests on {span.replicates} of the study's {study_draws} draws"
         if study_draws > 1 and span.replicates < study_draws

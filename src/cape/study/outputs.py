@@ -92,8 +92,18 @@ WHOLE_STUDY_NOTEBOOKS: dict[str, NotebookOutputs] = {
             "table01_replicates",
         ),
     ),
+    "question": NotebookOutputs(
+        figures={
+            "fig15_question_looks": (
+                "the ground-truth question: each row's intervals at each look against zero and "
+                "its margin, and where it stopped"
+            )
+        },
+        tables=("table10_question",),
+    ),
 }
-"""Notebooks of the whole study (their outputs directly under results/figures, results/tables)."""
+"""Notebooks of the whole study (their outputs directly under results/figures, results/tables;
+the question's under results/question/)."""
 
 
 def declared(name: str) -> bool:

@@ -324,3 +324,13 @@ def markdown(
                 f"{_fmt(r['within_var'])} | {int(r['seeds'])} |"
             )
     return "\n".join(lines) + "\n"
+
+
+def final_rows(looks: pd.DataFrame) -> pd.DataFrame:
+    """Table 10: every row of the question at its last look (looks.csv's last line per row)."""
+    columns = ["claim", "comparison", "decision", "draws", "estimate", "low", "high",
+               "equivalence_low", "equivalence_high", "margin", "why"]  # fmt: skip
+    if looks.empty:
+        return pd.DataFrame(columns=columns)
+    last = looks.sort_values("look", kind="stable").groupby(["claim", "comparison"], sort=False)
+    return last.tail(1)[columns].reset_index(drop=True)
