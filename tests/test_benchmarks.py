@@ -61,6 +61,7 @@ ARGS: dict[str, Args] = {
         "--replicate", "1", "--model", "ddm", "--eta", "1", "--seeds", "0", "--caps", "8",
         "--json", str(tmp / "rescue.json"), *SMOKE,
     ],
+    "question_calibration.py": lambda tmp: ["--trials", "200"],
     "rescue_outcomes.py": lambda tmp: [
         "--rescue", "null", "--study", "learned", "--replicate", "1", "--limit", "1",
         "--jobs", "1", "--json", str(tmp / "rescue_outcomes.json"), *SMOKE,

@@ -413,3 +413,40 @@ def test_verdicts_over_trained_draws_stay_calibrated_when_half_the_trainings_fai
     trained, kept = replaced_failures(draws, trials=2000, seed=draws)
     assert trained <= 0.065, f"R = {draws}: {trained:.1%} false verdicts over trained draws"
     assert kept > 0.10
+
+
+def test_a_row_inside_its_margin_is_equivalent_by_statsmodels_tost() -> None:
+    """Three draws, the adaptive NMPC 0.01, −0.02 and 0.005 s apart: undecided by the t-interval;
+    with a margin of 0.2 s (scorecard.margins) the two one-sided tests put it inside (p from
+    statsmodels' ``ttost_mean`` over the draws' effects), ``equivalent``, in table 8, its FDR
+    column, RESULTS.md and table 9; with a margin of 0.01 s, or none, it stays inconclusive."""
+    from statsmodels.stats.weightstats import DescrStatsW
+
+    from cape.study.glance import at_a_glance
+    from cape.study.leaderboard import leaderboard, recipe
+    from cape.study.scorecard import Settings
+    from cape.study.verdicts import EQUIVALENT
+
+    gaps = [0.01, -0.02, 0.005]
+    runs = _runs({"epm": [[7.0] * 5] * 3, "ddm": [[7.0 - g] * 5 for g in gaps]})
+    claim = _claim(Pair("epm", "ddm", -1.0, "−1"))
+    wide = Settings(margins={"lap_time_penalised": 0.2})
+    table, _ = evaluate_claims(Evidence(runs), only(claim), settings=wide)
+    row = table.iloc[0]
+    assert row["verdict"] == EQUIVALENT == row["verdict FDR"] == row["verdict all draws"]
+    assert row["p equivalence"] == pytest.approx(DescrStatsW(gaps).ttost_mean(-0.2, 0.2)[0])
+    assert row["margin"] == 0.2 and "no practical difference" in row["why"]
+    assert row["draws needed"] == ""
+    page = at_a_glance(table, runs)
+    assert "## No practical difference over the training draws: 1 of 1 rows" in page
+    narrow = Settings(margins={"lap_time_penalised": 0.01})
+    for settings in (narrow, Settings()):
+        table, _ = evaluate_claims(Evidence(runs), only(claim), settings=settings)
+        assert table.iloc[0]["verdict"] == INCONCLUSIVE
+    board = leaderboard(runs.assign(controller="anmpc"), ["epm", "ddm"], "epm", "anmpc_lap_time",
+                        margins=wide.margins, recipes={"ddm": "Adam lr 1.44e-4"})  # fmt: skip
+    ddm = board.set_index("model").loc["ddm"]
+    assert ddm["verdict vs reference"] == EQUIVALENT and ddm["recipe"] == "Adam lr 1.44e-4"
+    assert recipe({"train": {"lr": 1.44e-4, "batch_size": 2, "epochs": 400}}) == (
+        "Adam lr 0.000144, batch 2, 400 epochs"
+    )

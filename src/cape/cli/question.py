@@ -12,6 +12,7 @@ and looks.json, after every stage. How to read it: docs/question.md.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import re
@@ -100,7 +101,7 @@ def _snakemake(
     """Run ``target`` (the stage's runs) with the config ``files``; Snakemake's output goes to
     ``log``, its progress to the terminal every tenth. A failure is one CapeError naming
     the log."""
-    cmd = [sys.executable, "-m", "snakemake", target, "--configfile", *files]
+    cmd = [sys.executable, "-m", "snakemake", "-s", snakefile(), target, "--configfile", *files]
     if "--cores" not in extra and "-c" not in extra:
         cmd += ["--cores", cores]
     cmd += list(extra)
@@ -109,23 +110,57 @@ def _snakemake(
         out.write("$ " + shlex.join(cmd) + "\n")
         out.flush()
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}  # its progress as it happens, not at exit
+        # its own session: stopping the command (SIGTERM, Ctrl-C) stops Snakemake and its jobs
         proc = subprocess.Popen(
-            cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1, env=env
+            cmd,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            bufsize=1,
+            env=env,
+            start_new_session=True,
         )
         assert proc.stdout is not None
-        shown = -1
-        for line in proc.stdout:
-            out.write(line)
-            done = re.search(r"(\d+) of (\d+) steps \((\d+)%\) done", line)
-            if done and (int(done[3]) // 10 > shown or done[1] == done[2]):
-                shown = int(done[3]) // 10
-                print(f"  {what}: {done[0]}", flush=True)
-        status = proc.wait()
+        try:
+            shown = -1
+            for line in proc.stdout:
+                out.write(line)
+                done = re.search(r"(\d+) of (\d+) steps \((\d+)%\) done", line)
+                if done and (int(done[3]) // 10 > shown or done[1] == done[2]):
+                    shown = int(done[3]) // 10
+                    print(f"  {what}: {done[0]}", flush=True)
+            status = proc.wait()
+        except BaseException:
+            _stop(proc)
+            raise
     if status != 0:
         raise CapeError(
             f"{what}: Snakemake failed (exit {status}); its output, with the failed job and its "
             f"log, is in {log}. Fix that, then run `cape question` again: it resumes"
         )
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    """Stop Snakemake and every job it started (its session), then wait for them: a job writes
+    atomically, so what it had not finished is simply missing, and the next run redoes it."""
+    import signal
+
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        proc.wait(timeout=60)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
+def snakefile() -> str:
+    """The workflow's Snakefile: the working folder's, else the checkout's the package is in."""
+    from cape.config import REPO_ROOT
+
+    here = Path("Snakefile")
+    return str(here if here.is_file() else REPO_ROOT / "Snakefile")
 
 
 @command(

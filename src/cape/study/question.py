@@ -64,7 +64,11 @@ class QuestionSettings:
             raise CapeError(
                 f"{source}: field `question.models` must name two or more models of `models`"
                 + (f"; {', '.join(unknown)} is not one" if unknown else "")
-                + " (for DDM's tuned recipe, merge config/question.yaml)"
+                + (
+                    " (DDM's tuned recipe is config/question.yaml's: merge it)"
+                    if "ddm_tuned" in unknown
+                    else ""
+                )
             )
         stages = tuple(int(s) for s in q.get("stages") or ())
         if not stages or any(b <= a for a, b in itertools.pairwise(stages)):

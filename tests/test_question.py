@@ -1,0 +1,109 @@
+"""`cape question` through the real command (slow): a smoke question of two stages, killed in
+its second and resumed, a row settled as `equivalent`, and only the question's runs made."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import yaml
+from commands import cape, one_message
+from conftest import workdir
+
+from cape.config import REPO_ROOT
+
+QUESTION = {
+    # two models, looks at two and three draws; margins so wide that a row must be equivalent
+    "question": {"models": ["epm", "dpm"], "stages": [2, 3]},
+    "scorecard": {
+        "margins": {
+            "lap_time_penalised": 100.0,
+            "mean_abs_ex_penalised": 1000.0,
+            "mean_abs_ey_penalised": 1000.0,
+            "mean_speed": 1000.0,
+            "failures": 100.0,
+        }
+    },
+}
+ARGS = ["question", "--no-question-config", "--configfile", "config/smoke.yaml", "config/q.yaml"]
+
+
+@pytest.fixture
+def work(tmp_path: Path) -> Path:
+    work = workdir(tmp_path)
+    shutil.copy(REPO_ROOT / "config" / "smoke.yaml", work / "config" / "smoke.yaml")
+    (work / "config" / "q.yaml").write_text(yaml.safe_dump(QUESTION))
+    return work
+
+
+@pytest.mark.slow
+def test_the_question_runs_in_stages_resumes_and_settles_a_row(work: Path) -> None:
+    """Killed (SIGTERM) once its second stage has begun, the command stops Snakemake and its
+    jobs; run again it resumes: the first stage's runs are not redone, the second stage's
+    draws come, the report has both stages and a row settled as ``equivalent``. A further draw
+    runs the ground-truth study's NMPC runs only, none of the paper's study."""
+    proc = subprocess.Popen(
+        ["cape", *ARGS], cwd=work, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
+    assert proc.stdout is not None
+    seen = []
+    for line in proc.stdout:
+        seen.append(line)
+        if line.startswith("stage 2/2"):
+            time.sleep(5)  # some of the second stage's jobs are running
+            proc.send_signal(signal.SIGTERM)
+            break
+    rest = proc.communicate(timeout=300)[0]
+    assert proc.returncode == 143, "".join(seen) + rest
+    assert "terminated" in rest
+    left = subprocess.run(["pgrep", "-f", f"snakemake.*{work}"], capture_output=True, text=True)
+    assert not left.stdout.strip(), "Snakemake outlived the command"
+    first_runs = sorted((work / "results" / "runs").rglob("metrics.json"))
+    stamps = {p: p.stat().st_mtime_ns for p in first_runs}
+    assert any("rep0" in str(p) for p in first_runs)
+
+    again = cape(*ARGS, cwd=work, timeout=1200)
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert "stage 2: " in again.stdout and "report in" in again.stdout
+    assert all(p.stat().st_mtime_ns == t for p, t in stamps.items())  # nothing redone
+
+    question = work / "results" / "question"
+    stages = json.loads((question / "looks.json").read_text())["stages"]
+    assert [s["look at draws"] for s in stages] == [2, 3]
+    looks = pd.read_csv(question / "looks.csv")
+    final = looks.sort_values("look").groupby(["claim", "comparison"]).tail(1)
+    assert (final["decision"] == "equivalent").any(), final.to_string()
+    report = (question / "RESULTS.md").read_text()
+    assert "| 2 | EPM 3, DPM 3 |" in report and "**Where it stopped:**" in report
+    for produced in ("figures/fig15_question_looks.png", "tables/table10_question.md",
+                     "notebooks/question.html"):  # fmt: skip
+        assert (question / produced).is_file(), produced
+    runs = work / "results" / "runs"
+    assert (runs / "truth" / "rep2" / "truth" / "dpm" / "anmpc").is_dir()
+    assert (
+        not (runs / "learned").exists()
+        and not (runs / "truth" / "rep2" / "truth" / "truth").exists()
+    )
+
+
+def test_a_bad_question_is_one_line(tmp_path: Path) -> None:
+    """Unknown models, stages that do not increase, a missing file: one line naming the field
+    or file and the fix, exit status 2, nothing run."""
+    work = workdir(tmp_path)
+    bad = work / "config" / "bad.yaml"
+    bad.write_text("question: {models: [epm, nosuch]}\n")
+    one_message(cape("question", "--no-question-config", "--configfile", str(bad), "--dry-run",
+                     cwd=work), "question.models", "nosuch is not one")  # fmt: skip
+    bad.write_text("question: {stages: [6, 3]}\n")
+    one_message(cape("question", "--no-question-config", "--configfile", str(bad), "--dry-run",
+                     cwd=work), "question.stages", "increase")  # fmt: skip
+    missing = cape("question", "--no-question-config", "--configfile", "nope.yaml", "--dry-run",
+                   cwd=work)  # fmt: skip
+    one_message(missing, "nope.yaml not found")
+    assert not (work / "results").exists()
