@@ -235,3 +235,17 @@ def test_a_stage_runs_only_the_questions_nmpc_runs() -> None:
     assert overrides["training"]["replicates"] == 6
     assert overrides["study"]["studies"]["learned"] == {"replicates": [0, 1, 2]}
     assert overrides["question"]["plan"]["draws"] == {"epm": 6, "ddm": 3, "dpm": 6}
+
+
+def test_the_questions_ddm_recipe_is_the_examples() -> None:
+    """config/question.yaml's `ddm_tuned` is config/examples/ddm_tuned.yaml's, key for key, so
+    a training made with either is the other's (docs/models.md); both are the authors' recipe."""
+    import yaml
+
+    from cape.config import REPO_ROOT
+
+    def entry(name: str) -> dict:
+        return yaml.safe_load((REPO_ROOT / "config" / name).read_text())["models"]["ddm_tuned"]
+
+    assert entry("question.yaml") == entry("examples/ddm_tuned.yaml")
+    assert entry("question.yaml")["train"] == {"lr": 1.44e-4, "batch_size": 2, "epochs": 400}
