@@ -235,6 +235,9 @@ def test_a_stage_runs_only_the_questions_nmpc_runs() -> None:
     assert overrides["training"]["replicates"] == 6
     assert overrides["study"]["studies"]["learned"] == {"replicates": [0, 1, 2]}
     assert overrides["question"]["plan"]["draws"] == {"epm": 6, "ddm": 3, "dpm": 6}
+    assert "max_trainings" not in overrides["training"]  # the default, 2R, grows by itself
+    config["training"]["max_trainings"] = 4  # a fixed cap grows with the draws: 4 × 6/3
+    assert run_overrides(config, settings, plan)["training"]["max_trainings"] == 8
 
 
 def test_the_questions_ddm_recipe_is_the_examples() -> None:

@@ -186,7 +186,8 @@ def run_overrides(config: Mapping[str, Any], settings: QuestionSettings, plan: P
     """The config a stage's Snakemake run merges over the user's: the ground-truth study runs
     every question model inside the NMPCs for up to the stage's draws; every other study keeps
     the draws it has (``all`` becomes the list it meant), so the grid grows by the question's
-    runs alone; ``question.plan`` is the stage's."""
+    runs alone; a fixed ``training.max_trainings`` grows in proportion to the draws (the
+    default, 2R, does by itself); ``question.plan`` is the stage's."""
     replicates = int(config["training"]["replicates"])
     studies: dict[str, Any] = {}
     for name, grid in config["study"]["studies"].items():
@@ -200,8 +201,12 @@ def run_overrides(config: Mapping[str, Any], settings: QuestionSettings, plan: P
         elif grid.get("replicates", [0]) == "all":
             studies[name] = {"replicates": list(range(replicates))}
     most = max(replicates, *plan.draws.values())
+    training: dict[str, Any] = {"replicates": most}
+    cap = config["training"].get("max_trainings")
+    if cap is not None:  # a fixed cap grows with the draws, as the default 2R does
+        training["max_trainings"] = max(int(cap), math.ceil(int(cap) * most / replicates))
     return {
-        "training": {"replicates": most},
+        "training": training,
         "study": {"studies": studies},
         "question": {"plan": plan.as_config()},
     }
