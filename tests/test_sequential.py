@@ -126,13 +126,16 @@ RATIOS = (0.2, 1.0, 10.0)
 @pytest.mark.parametrize("ratio", RATIOS)
 def test_no_effect_is_rarely_decided_over_all_looks(law: str, ratio: float) -> None:
     """With no true effect a row is decided (holds or contradicted) at any of the five looks in
-    at most 5 % of rows (the acceptance), and within Monte Carlo error of its own α/15."""
+    at most 5 % of rows (the acceptance); within Monte Carlo error of its own α/15 where the
+    effect is symmetric, within twice that where the two models differ in shape (measured
+    0.50 % at most, docs/question.md)."""
     rate = calib.false_verdict_rate(STUDY, law, ratio, margin=ratio)
     assert rate <= 0.05
-    assert rate <= STUDY.per_row + 3 * math.sqrt(STUDY.per_row / 4000) + 0.001
+    nominal = STUDY.per_row * (2 if law == "unequal" else 1)
+    assert rate <= nominal + 3 * math.sqrt(nominal / 4000) + 0.001
 
 
-@pytest.mark.parametrize("law", ("normal", "skewed"))
+@pytest.mark.parametrize("law", ("normal", "skewed", "unequal"))
 @pytest.mark.parametrize("ratio", RATIOS)
 def test_an_effect_at_the_margin_is_rarely_called_equivalent(law: str, ratio: float) -> None:
     """With a true effect equal to the margin (1 σ_between, or 1 σ_within where the draws
@@ -153,7 +156,7 @@ def test_the_family_error_holds_with_some_rows_null(law: str) -> None:
     assert calib.family_error(STUDY, law, 8, 7, 2.0, 1.0, 1.0, trials=1000) <= 0.05
 
 
-@pytest.mark.parametrize("law", ("normal", "skewed"))
+@pytest.mark.parametrize("law", ("normal", "skewed", "unequal"))
 def test_an_effect_of_two_between_draw_sds_is_found_with_fewer_draws(law: str) -> None:
     """A true effect of 2 σ_between where the draws differ as much as the seeds: decided on its
     side in at least 95 % of rows, using on average fewer draws than the cap (measured: about
@@ -189,7 +192,10 @@ def test_the_question_has_five_metrics_for_every_pair() -> None:
     rows = settings.rows()
     assert len(rows) == 15 and settings.design().rows == 15
     assert {r.comparison for r in rows} >= {"EPM − DDM", "EPM vs DPM", "DDM vs DPM"}
-    assert {r.margin for r in rows} == {0.2, 10.0, 3.0, 1.0}
+    margins = {r.metric: r.margin for r in rows}  # relative ones on the log-ratio scale
+    assert margins["lap_time_penalised"] == 0.2 and margins["failures"] == 1.0
+    assert margins["mean_abs_ex_penalised"] == pytest.approx(100 * math.log(1.1))
+    assert margins["mean_speed"] == pytest.approx(100 * math.log(1.03))
 
 
 def test_a_question_with_an_unknown_model_names_the_field_and_the_fix() -> None:
@@ -213,9 +219,10 @@ def test_draws_are_added_only_to_the_models_of_open_rows() -> None:
     assert sum(s.settled for s in states) == 10
     nxt = next_draws(states, {"epm": 3, "ddm": 3, "dpm": 3}, 6)
     assert nxt == {"epm": 6, "ddm": 3, "dpm": 6}
-    evaluate(runs, states, settings.design(), 1)  # no runs: the open rows stay open, said why
-    assert all(s.decision == OPEN for s in states if not s.settled)
-    assert states[1].looks[-1].why == "0 of 6 draws have a value"
+    evaluate(runs, states, settings.design(), 1)  # no runs: inconclusive for good, said why
+    assert all(s.decision == INCONCLUSIVE for s in states if not s.settled)
+    assert states[1].looks[-1].why.startswith("0 of 6 draws have a value")
+    assert next_draws(states, nxt, 10) == nxt  # rows done for good buy no draws
 
 
 def test_a_stage_runs_only_the_questions_nmpc_runs() -> None:
@@ -235,9 +242,10 @@ def test_a_stage_runs_only_the_questions_nmpc_runs() -> None:
     assert overrides["training"]["replicates"] == 6
     assert overrides["study"]["studies"]["learned"] == {"replicates": [0, 1, 2]}
     assert overrides["question"]["plan"]["draws"] == {"epm": 6, "ddm": 3, "dpm": 6}
-    assert "max_trainings" not in overrides["training"]  # the default, 2R, grows by itself
-    config["training"]["max_trainings"] = 4  # a fixed cap grows with the draws: 4 × 6/3
-    assert run_overrides(config, settings, plan)["training"]["max_trainings"] == 8
+    # one cap for every stage, the last one's: twice its 10 draws, or a fixed cap grown alike
+    assert overrides["training"]["max_trainings"] == 20
+    config["training"]["max_trainings"] = 4  # 4 × 10/3
+    assert run_overrides(config, settings, plan)["training"]["max_trainings"] == 14
 
 
 def test_the_questions_ddm_recipe_is_the_examples() -> None:

@@ -102,7 +102,7 @@ def _snakemake(
     ``log``, its progress to the terminal every tenth. A failure is one CapeError naming
     the log."""
     cmd = [sys.executable, "-m", "snakemake", "-s", snakefile(), target, "--configfile", *files]
-    if "--cores" not in extra and "-c" not in extra:
+    if not any(a.startswith(("--cores", "-c")) for a in extra):
         cmd += ["--cores", cores]
     cmd += list(extra)
     log.parent.mkdir(parents=True, exist_ok=True)
@@ -153,6 +153,22 @@ def _stop(proc: subprocess.Popen) -> None:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
+
+
+def _chosen_seeds(settings: Any) -> int | None:
+    """The seeds per later draw an earlier run of the same question chose (looks.json), if any."""
+    path = Path(paths.QUESTION_STATE)
+    if not path.is_file():
+        return None
+    try:
+        state = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    same = state.get("models") == list(settings.models) and state.get("stages") == list(
+        settings.stages
+    )
+    seeds = state.get("later_seeds")
+    return int(seeds) if same and isinstance(seeds, int) and seeds >= 1 else None
 
 
 def snakefile() -> str:
@@ -224,24 +240,24 @@ def cmd_question(args: argparse.Namespace) -> None:
             flush=True,
         )
         tick = time.perf_counter()
-        _snakemake(
-            stage_files, args.cores, extra, Path(paths.QUESTION, "logs", f"stage{k + 1}.log"), k
-        )
+        log = Path(paths.QUESTION, "logs", f"stage{k + 1}.log")
+        _snakemake(stage_files, args.cores, extra, log, f"stage {k + 1}")
         runs = report.read_stage_runs(config, settings, plan)
         evaluate(runs, states, design, k)
         cost = report.costs(config, settings, plan)
         if k == 0:
             ratio = cost.cost_ratio()
-            if ratio is None:
-                seeds_later = settings.seeds
-                components = None
-            else:
+            if ratio is not None:
                 seeds_later, components = later_seeds(
                     runs, states, n, settings.seeds, ratio, settings.least_seeds
                 )
+            # a resumed run keeps the seeds its first run chose (the CPU it reads may differ)
+            seeds_later = chosen if (chosen := _chosen_seeds(settings)) else seeds_later
         stages.append(report.stage_record(k, n, draws, states, cost, time.perf_counter() - tick))
         write_text(paths.QUESTION_LOOKS, report.looks_frame(states).to_csv(index=False))
-        write_text(paths.QUESTION_STATE, json.dumps({"stages": stages}, indent=1, default=str))
+        state = {"models": list(settings.models), "stages": list(settings.stages),
+                 "later_seeds": seeds_later, "looks": stages}  # fmt: skip
+        write_text(paths.QUESTION_STATE, json.dumps(state, indent=1, default=str))
         if components is not None:
             write_text(paths.QUESTION_COMPONENTS, components.to_csv(index=False))
         remaining = report.remaining(states, settings, draws, cost, seeds_later)
@@ -250,6 +266,7 @@ def cmd_question(args: argparse.Namespace) -> None:
             report.markdown(settings, design, states, stages, components, seeds_later, remaining),
         )
         settled = sum(s.settled for s in states)
+        finished = all(s.done for s in states)
         print(
             f"stage {k + 1}: {settled} of {len(states)} rows settled ("
             + ", ".join(f"{v} {c}" for v, c in report.tally(states).items())
@@ -257,12 +274,12 @@ def cmd_question(args: argparse.Namespace) -> None:
             + (
                 f"to the cap at most {remaining:,.0f} s more CPU (≈ {remaining / 2 / 3600:.1f} h "
                 "on two cores)"
-                if settled < len(states) and k + 1 < len(settings.stages)
+                if not finished
                 else "done"
             ),
             flush=True,
         )
-        if settled == len(states):
+        if finished:
             break
         if k + 1 < len(settings.stages):
             draws = next_draws(states, draws, settings.stages[k + 1])

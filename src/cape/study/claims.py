@@ -15,6 +15,7 @@ import itertools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
+import numpy as np
 import pandas as pd
 
 from cape import paper
@@ -37,6 +38,10 @@ class Effect:
 
 DIFFERENCE = Effect(lambda a, b: a - b, "", " − ")
 RELATIVE = Effect(lambda a, b: 100 * (a - b) / b, " %", " vs ")
+LOG_RATIO = Effect(lambda a, b: 100 * np.log(a / b), " % (100·ln a/b)", " vs ")
+"""The question's relative effect: 100·ln(a/b), about the relative difference for small ones.
+Unlike (a − b)/b it is antisymmetric, so two exchangeable models have no effect on average
+(the mean of (a − b)/b over independent draws is positive: Jensen)."""
 
 
 @dataclass(frozen=True)
@@ -371,9 +376,9 @@ def _better(models: Sequence[str], metric: str) -> tuple[Pair, ...]:
 def question_claims(models: Sequence[str]) -> tuple[ClosedLoopClaim, ...]:
     """The ground-truth question's claims (``cape question``): the scorecard's five ground-truth
     comparisons (the adaptive NMPC's penalised lap time over η; the NMPCs' e_x, e_y and speed at
-    η = 1, relative; their failures per seed) for every pair of ``models``, each tested as the
-    earlier model better than the later (for EPM, DDM, DPM: the paper's side, as in
-    ``GROUND_TRUTH_CLAIMS``)."""
+    η = 1 as log-ratios, ``LOG_RATIO``; their failures per seed) for every pair of ``models``,
+    each tested as the earlier model better than the later (for EPM, DDM, DPM: the paper's
+    side, as in ``GROUND_TRUTH_CLAIMS``)."""
     nmpcs_at_1 = both(at_eta(1.0), controllers(NMPCS))
     return (
         ClosedLoopClaim(
@@ -386,11 +391,11 @@ def question_claims(models: Sequence[str]) -> tuple[ClosedLoopClaim, ...]:
         ),
         *(
             ClosedLoopClaim(
-                f"η = 1, mean over the NMPCs: {metric} (%)",
+                f"η = 1, mean over the NMPCs: {metric} (100·ln a/b, %)",
                 nmpcs_at_1,
                 metric,
                 _better(models, metric),
-                effect=RELATIVE,
+                effect=LOG_RATIO,
                 unit=" %",
                 setting=GROUND_TRUTH,
             )

@@ -25,9 +25,9 @@ import pandas as pd
 from cape.errors import CapeError
 from cape.layout.names import TRUTH
 from cape.layout.runs import RunId
-from cape.study.claims import NMPCS, ClosedLoopClaim, Pair, question_claims
+from cape.study.claims import LOG_RATIO, NMPCS, ClosedLoopClaim, Pair, question_claims
 from cape.study.scorecard import pair_effects, per_seed
-from cape.study.sequential import OPEN, SETTLED, Design, Look, look, seeds_per_draw
+from cape.study.sequential import INCONCLUSIVE, OPEN, SETTLED, Design, Look, look, seeds_per_draw
 from cape.study.sequential import variance_components as components
 
 
@@ -102,11 +102,15 @@ class QuestionSettings:
         return question_claims(self.models)
 
     def rows(self) -> list[Row]:
-        return [
-            Row(claim, pair, self.margins.get(claim.metric))
-            for claim in self.claims()
-            for pair in claim.pairs
-        ]
+        """Every (claim, pair), with its metric's margin; a relative margin m % becomes
+        100·ln(1 + m/100) on the log-ratio scale (a/b within [1/(1 + m), 1 + m])."""
+        rows = []
+        for claim in self.claims():
+            margin = self.margins.get(claim.metric)
+            if margin is not None and claim.effect is LOG_RATIO:
+                margin = 100 * math.log1p(margin / 100)
+            rows += [Row(claim, pair, margin) for pair in claim.pairs]
+        return rows
 
     def design(self) -> Design:
         return Design(self.stages, len(self.rows()), self.alpha, self.spending)
@@ -186,8 +190,8 @@ def run_overrides(config: Mapping[str, Any], settings: QuestionSettings, plan: P
     """The config a stage's Snakemake run merges over the user's: the ground-truth study runs
     every question model inside the NMPCs for up to the stage's draws; every other study keeps
     the draws it has (``all`` becomes the list it meant), so the grid grows by the question's
-    runs alone; a fixed ``training.max_trainings`` grows in proportion to the draws (the
-    default, 2R, does by itself); ``question.plan`` is the stage's."""
+    runs alone; ``training.max_trainings`` is the last stage's in every stage (twice its draws,
+    or a fixed cap grown in proportion); ``question.plan`` is the stage's."""
     replicates = int(config["training"]["replicates"])
     studies: dict[str, Any] = {}
     for name, grid in config["study"]["studies"].items():
@@ -201,10 +205,13 @@ def run_overrides(config: Mapping[str, Any], settings: QuestionSettings, plan: P
         elif grid.get("replicates", [0]) == "all":
             studies[name] = {"replicates": list(range(replicates))}
     most = max(replicates, *plan.draws.values())
-    training: dict[str, Any] = {"replicates": most}
+    # one cap of trainings per model for every stage, the last stage's (2R by default, or the
+    # fixed cap grown in proportion): a draw's cap never changes between stages, so no stage
+    # redoes a draw another made (cape.models.draws.deciding_cap)
     cap = config["training"].get("max_trainings")
-    if cap is not None:  # a fixed cap grows with the draws, as the default 2R does
-        training["max_trainings"] = max(int(cap), math.ceil(int(cap) * most / replicates))
+    last = max(most, settings.stages[-1])
+    cap = 2 * last if cap is None else max(int(cap), math.ceil(int(cap) * last / replicates))
+    training: dict[str, Any] = {"replicates": most, "max_trainings": cap}
     return {
         "training": training,
         "study": {"studies": studies},
@@ -227,6 +234,11 @@ class RowState:
     def settled(self) -> bool:
         return self.decision in SETTLED
 
+    @property
+    def done(self) -> bool:
+        """Settled, or inconclusive for good (the cap, or a draw it lost)."""
+        return self.decision != OPEN
+
 
 def draw_values(runs: pd.DataFrame, row: Row, draws: int) -> list[float]:
     """The row's effect per training draw (the mean over its seeds, paired by seed), for the
@@ -246,29 +258,19 @@ def evaluate(
     runs: pd.DataFrame, states: Sequence[RowState], design: Design, stage: int
 ) -> list[RowState]:
     """Look ``stage`` at every row still open: its decision from its draws' effects at the
-    stage's draws (a row with fewer values than that, its runs lost or its draws untrained,
-    stays as it was, said in its ``why``). Settled rows keep their decision."""
+    stage's draws. A row with fewer values than that (a draw untrained at the cap, or with no
+    finite effect) cannot be looked at as planned: it is inconclusive for good, said in its
+    ``why``, and buys no more draws. Decided rows keep their decision."""
     n = design.looks[stage]
     last = stage == len(design.looks) - 1
+    nothing = (math.nan,) * 6
     for state in states:
-        if state.settled:
+        if state.done:
             continue
         values = draw_values(runs, state.row, n)
         if len(values) < n:
-            why = f"{len(values)} of {n} draws have a value"
-            state.looks.append(
-                Look(
-                    len(values),
-                    math.nan,
-                    math.nan,
-                    math.nan,
-                    math.nan,
-                    math.nan,
-                    math.nan,
-                    "inconclusive" if last else OPEN,
-                    why,
-                )
-            )
+            why = f"{len(values)} of {n} draws have a value (a draw untrained, or no finite effect)"
+            state.looks.append(Look(len(values), *nothing, INCONCLUSIVE, why))
             continue
         side = float(np.sign(state.row.pair.paper_effect))
         state.looks.append(look(values, design, state.row.margin, side, last))
@@ -278,7 +280,7 @@ def evaluate(
 def next_draws(states: Iterable[RowState], current: Mapping[str, int], n: int) -> dict[str, int]:
     """Draws per model at the next look: ``n`` for every model of a row still open, the
     current number for the others (draws are added only where a row needs them)."""
-    open_models = {m for s in states if not s.settled for m in s.row.models}
+    open_models = {m for s in states if not s.done for m in s.row.models}
     return {m: (max(n, d) if m in open_models else d) for m, d in current.items()}
 
 
@@ -296,7 +298,7 @@ def later_seeds(
     rows, rounded up. Returns it and the components per row (the report's)."""
     records = []
     for state in states:
-        if state.settled:
+        if state.done:
             continue
         row = state.row
         selected = row.claim.select(runs)

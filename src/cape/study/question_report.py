@@ -70,6 +70,7 @@ class Cost:
     failed ones too) and draws, the stage's runs and their count, the solvers."""
 
     trainings: dict[str, list[float]] = field(default_factory=dict)
+    solvers: dict[str, float] = field(default_factory=dict)
     tried: dict[str, int] = field(default_factory=dict)
     failed: dict[str, int] = field(default_factory=dict)
     draws: dict[str, int] = field(default_factory=dict)
@@ -84,9 +85,12 @@ class Cost:
         return sum(sum(v) for v in self.trainings.values()) + self.runs_s + self.solvers_s
 
     def per_draw(self, model: str) -> float:
-        """A draw's training CPU: the model's trainings (failed ones too) over its draws."""
+        """A draw's fixed CPU: the model's trainings (failed ones too) and its solvers' builds,
+        over its draws."""
         spent = self.trainings.get(model, [])
-        return sum(spent) / max(1, self.draws.get(model, 0)) if spent else math.nan
+        if not spent:
+            return math.nan
+        return (sum(spent) + self.solvers.get(model, 0.0)) / max(1, self.draws.get(model, 0))
 
     def per_seed(self) -> float:
         """One seed's runs of one model's draw: 3 NMPCs × the η grid, at the mean run's CPU."""
@@ -142,7 +146,9 @@ def costs(config: Mapping[str, Any], settings: QuestionSettings, plan: Plan) -> 
                 tsv = Path(
                     paths.benchmark("solvers", replicate_name(r), controller, f"{model}.tsv")
                 )
-                cost.solvers_s += _cpu(tsv) or 0.0
+                built = _cpu(tsv) or 0.0
+                cost.solvers_s += built
+                cost.solvers[model] = cost.solvers.get(model, 0.0) + built
     for run in stage_runs(settings, plan):
         folder = run.folder()
         try:
@@ -220,7 +226,7 @@ def remaining(
 ) -> float:
     """The most CPU left to the cap: every model of an open row taken to the last stage's
     draws, each new draw at this study's measured cost (training and its seeds' runs)."""
-    open_models = {m for s in states if not s.settled for m in s.row.models}
+    open_models = {m for s in states if not s.done for m in s.row.models}
     seed = cost.per_seed()
     total = 0.0
     for m in open_models:
@@ -275,10 +281,12 @@ def markdown(
             f"{s[EQUIVALENT]} | {s[INCONCLUSIVE]} | {s[OPEN]} | {s['cpu_s']:,.0f} | "
             f"{s['wall_s']:,.0f} |"
         )
-    open_rows = [s for s in states if not s.settled]
+    open_rows = [s for s in states if not s.done]
     last = stages[-1] if stages else {}
-    if not open_rows:
+    if all(s.settled for s in states):
         stop = "every row is settled"
+    elif not open_rows:
+        stop = "every row is settled or inconclusive for good (lost draws, or the cap)"
     elif last and last.get("look at draws") == settings.stages[-1]:
         stop = f"the cap ({settings.stages[-1]} draws per model) was reached"
     else:

@@ -36,7 +36,7 @@ OPEN = "open"
 """Not decided yet: more draws come at the next look."""
 SETTLED = (HOLDS, CONTRADICTED, EQUIVALENT)
 
-BOUNDARY_TRIALS = 400_000
+BOUNDARY_TRIALS = 1_000_000
 """Monte Carlo paths of the t-process each boundary is a quantile of."""
 
 
@@ -58,8 +58,12 @@ def boundaries(
 ) -> tuple[float, ...]:
     """The critical values c_1 … c_K of the t-statistic at the looks: under normal draws with
     no effect, the chance that ``|T_k| ≥ c_k`` (``two_sided``) or ``T_k ≥ c_k`` at look k and at
-    no earlier look is the α spent there (``spent``). ``inf`` where a look spends less than one
-    path's worth. Seeded Monte Carlo over ``trials`` paths (the t-process is pivotal)."""
+    no earlier look is the α spent there (``spent``). The first look's is Student's t quantile
+    (nothing comes before it); each later one a quantile of the paths that crossed no earlier
+    boundary, by seeded Monte Carlo over ``trials`` paths (the t-process is pivotal); ``inf``
+    where a look spends less than one path's worth."""
+    from scipy import stats
+
     if len(looks) < 1 or any(b <= a for a, b in itertools.pairwise(looks)):
         raise ValueError(f"looks must increase: {looks}")
     if looks[0] < 2:
@@ -80,6 +84,11 @@ def boundaries(
         t = mean / (sd / math.sqrt(n))
         stat = np.abs(t) if two_sided else t
         spend = cumulative[k] - (cumulative[k - 1] if k else 0.0)
+        if k == 0:  # exactly: the first look's crossing is the t-test's own tail
+            c = float(stats.t.isf(spend / 2 if two_sided else spend, n - 1))
+            out.append(c)
+            alive &= ~(stat >= c)
+            continue
         count = round(spend * trials)
         candidates = np.sort(stat[alive])[::-1]
         if count < 1 or count > candidates.size:

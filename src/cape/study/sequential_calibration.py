@@ -13,6 +13,9 @@ for both, each model's draws and seeds follow the law and a row's effect is the 
 the two models' values (draws of two models are separate trainings; seeds are shared), scaled
 so that its spreads are ``ratio`` and 1: with no effect the two models are exchangeable, so the
 effect is symmetric about zero however skewed each model's values are;
+- ``unequal``: the first model's values skewed, the second's normal, of the same mean and
+  spread: models of different shape (one failing now and then, the other not), the hard case
+  for a t-test, whose effect is skewed;
 - ``failures``: integer failure counts per seed (of 33 runs), each model's draw with its own
   failure rate (exponentially distributed around the model's mean), Poisson per seed; the effect
   is the difference of counts and ``ratio`` is unused.
@@ -37,7 +40,7 @@ from cape.study.sequential import (
     variance_components,
 )
 
-LAWS = ("normal", "skewed", "failures")
+LAWS = ("normal", "skewed", "unequal", "failures")
 RUNS = 33
 """The runs a failure count is out of (3 NMPCs × 11 η)."""
 BASE_FAILURES = 2.0
@@ -72,11 +75,12 @@ def seed_values(
     if law not in LAWS:
         raise ValueError(f"unknown law {law!r}: one of {', '.join(LAWS)}")
     scale = 1 / math.sqrt(2)  # a − b of two models' values, each of this spread
-    a = ratio * _standard(law, rng, (trials, draws, 1)) + _standard(
-        law, rng, (trials, draws, seeds)
+    law_a, law_b = ("skewed", "normal") if law == "unequal" else (law, law)
+    a = ratio * _standard(law_a, rng, (trials, draws, 1)) + _standard(
+        law_a, rng, (trials, draws, seeds)
     )
-    b = ratio * _standard(law, rng, (trials, draws, 1)) + _standard(
-        law, rng, (trials, draws, seeds)
+    b = ratio * _standard(law_b, rng, (trials, draws, 1)) + _standard(
+        law_b, rng, (trials, draws, seeds)
     )
     return effect + scale * (a - b)
 
