@@ -506,3 +506,12 @@ def all_targets():
         *study_targets(),
     ]
 
+
+def question_targets():
+    """Every file of the runs the current stage's plan names, with their compiled solvers."""
+    plan = (config.get("question") or {}).get("plan")
+    if not plan:
+        return []
+    settings = QuestionSettings.from_config(config, SOURCE)
+    runs = [GRID.get(run, run) for run in stage_runs(settings, Plan.from_config(plan))]
+    return [*solver_outputs(runs), *run_outputs(runs)]

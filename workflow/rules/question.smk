@@ -4,16 +4,6 @@
 # and with them the trainings, draws and solvers they read. Without a plan it is empty.
 
 
-def question_targets():
-    """Every file of the runs the current stage's plan names, with their compiled solvers."""
-    plan = (config.get("question") or {}).get("plan")
-    if not plan:
-        return []
-    settings = QuestionSettings.from_config(config, SOURCE)
-    runs = [GRID.get(run, run) for run in stage_runs(settings, Plan.from_config(plan))]
-    return [*solver_outputs(runs), *run_outputs(runs)]
-
-
 rule question:
     """The runs of the question's current stage (`cape question` runs it, stage by stage)."""
     input:

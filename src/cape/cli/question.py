@@ -106,7 +106,7 @@ def _snakemake(
         cmd += ["--cores", cores]
     cmd += list(extra)
     log.parent.mkdir(parents=True, exist_ok=True)
-    with open(log, "w") as out:
+    with open(log, "w", buffering=1) as out:  # line by line: `tail -f` follows it
         out.write("$ " + shlex.join(cmd) + "\n")
         out.flush()
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}  # its progress as it happens, not at exit
