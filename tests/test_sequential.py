@@ -14,15 +14,8 @@ from scipy import stats
 
 from cape.errors import CapeError
 from cape.study import sequential_calibration as calib
-from cape.study.question import (
-    Plan,
-    QuestionSettings,
-    RowState,
-    evaluate,
-    next_draws,
-    run_overrides,
-    stage_runs,
-)
+from cape.study.question import RowState, evaluate, next_draws
+from cape.study.question_plan import Plan, QuestionSettings, run_overrides, stage_runs
 from cape.study.sequential import (
     CONTRADICTED,
     EQUIVALENT,
@@ -260,3 +253,14 @@ def test_the_questions_ddm_recipe_is_the_examples() -> None:
 
     assert entry("question.yaml") == entry("examples/ddm_tuned.yaml")
     assert entry("question.yaml")["train"] == {"lr": 1.44e-4, "batch_size": 2, "epochs": 400}
+
+
+def test_the_workflows_question_module_stays_light() -> None:
+    """Snakemake imports cape.study.question_plan whenever it reads the Snakefile (in every job
+    of a SLURM group too): it must not pull in pandas or SciPy (about 1.6 s a process)."""
+    import subprocess
+    import sys
+
+    code = "import sys, cape.study.question_plan; print(sorted({'pandas', 'scipy'} & set(sys.modules)))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"

@@ -20,7 +20,7 @@ from cape.layout.names import TRUTH, PlantName, models_read, plant_names
 from cape.layout.runs import RunId
 from cape.study.grid import study_grid
 from cape.study.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS
-from cape.study.question import Plan, QuestionSettings, stage_runs
+from cape.study.question_plan import Plan, QuestionSettings, stage_runs
 from cape.study.stale import missing_runs
 from cape.tracks.manifest import BAYESRACE_FILES
 

@@ -188,15 +188,8 @@ def cmd_question(args: argparse.Namespace) -> None:
     from cape.io import write_text
     from cape.ownership import Output
     from cape.study import question_report as report
-    from cape.study.question import (
-        Plan,
-        QuestionSettings,
-        RowState,
-        evaluate,
-        later_seeds,
-        next_draws,
-        run_overrides,
-    )
+    from cape.study.question import RowState, evaluate, later_seeds, next_draws
+    from cape.study.question_plan import Plan, QuestionSettings, run_overrides
 
     extra = [a for a in args.snakemake_args if a != "--"]
     files = [*DEFAULT_FILES[: 1 if args.no_question_config else 2], *args.configfile]

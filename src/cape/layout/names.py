@@ -33,6 +33,8 @@ def check_name(name: str, where: str) -> str:
 
 
 TRUTH = "truth"
+NMPCS = ("nmpc", "anmpc", "rnmpc")
+"""The NMPC family's controllers, whose runs the claims and the question read."""
 """The ground-truth plant's (and internal model's) name."""
 FIXED_SUFFIX = "-fixed"
 

@@ -19,8 +19,7 @@ import numpy as np
 import pandas as pd
 
 from cape import paper
-
-NMPCS = ("nmpc", "anmpc", "rnmpc")
+from cape.layout.names import NMPCS
 
 FAILURES = "failures"
 """A closed-loop claim's metric: the runs that failed (summed per seed with ``per_seed="sum"``)."""

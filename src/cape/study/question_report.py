@@ -14,7 +14,8 @@ import pandas as pd
 from cape.layout import paths
 from cape.layout.names import replicate_name
 from cape.study.claims import NMPCS
-from cape.study.question import Plan, QuestionSettings, RowState, stage_runs
+from cape.study.question import RowState
+from cape.study.question_plan import Plan, QuestionSettings, stage_runs
 from cape.study.sequential import (
     CONTRADICTED,
     EQUIVALENT,
