@@ -261,6 +261,9 @@ def test_the_workflows_question_module_stays_light() -> None:
     import subprocess
     import sys
 
-    code = "import sys, cape.study.question_plan; print(sorted({'pandas', 'scipy'} & set(sys.modules)))"
+    code = (
+        "import sys, cape.study.question_plan; "
+        "print(sorted({'pandas', 'scipy'} & set(sys.modules)))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
