@@ -267,3 +267,22 @@ def test_the_workflows_question_module_stays_light() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_the_projection_to_the_cap_by_hand() -> None:
+    """One open row of models a and b at three draws, the cap at six: three more trainings each
+    (100 s for a, 50 s for b) list-scheduled on 2 slots end at 250 s; then 6 draws × 2 seeds ×
+    10 s of runs over 2 slots, 60 s: 310 s. At most 3 × (100 + 20) + 3 × (50 + 20) = 570 s CPU."""
+    from cape.study.claims import question_claims
+    from cape.study.question_plan import Row
+    from cape.study.question_report import Cost, projected_wall, remaining
+
+    claim = question_claims(["a", "b"])[0]
+    states = [RowState(Row(claim, claim.pairs[0], None))]
+    settings = QuestionSettings(("a", "b"), (3, 6), 0.05, 2.0, {}, "truth", ("0",), 5, 2)
+    cost = Cost(trainings={"a": [300.0], "b": [150.0]}, draws={"a": 3, "b": 3}, runs_s=110.0,
+                runs=33, etas=1)  # fmt: skip
+    assert cost.per_seed() == pytest.approx(10.0)
+    draws = {"a": 3, "b": 3}
+    assert projected_wall(states, settings, draws, cost, 2, 2) == pytest.approx(310.0)
+    assert remaining(states, settings, draws, cost, 2) == pytest.approx(570.0)

@@ -48,6 +48,14 @@ def _arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--cores", default="2", help="Snakemake's --cores for each stage (%(default)s)")
     p.add_argument(
+        "--project-cores",
+        type=int,
+        default=64,
+        metavar="N",
+        help="the cluster size the report projects the wall time to the cap on, beside two "
+        "cores (%(default)s: e.g. 32 nodes of 2 cores through the SLURM profile)",
+    )
+    p.add_argument(
         "--dry-run",
         action="store_true",
         help="print the first stage's plan and Snakemake command, run nothing",
@@ -254,9 +262,15 @@ def cmd_question(args: argparse.Namespace) -> None:
         if components is not None:
             write_text(paths.QUESTION_COMPONENTS, components.to_csv(index=False))
         remaining = report.remaining(states, settings, draws, cost, seeds_later)
+        walls = {
+            n: report.projected_wall(states, settings, draws, cost, seeds_later, n)
+            for n in dict.fromkeys((2, args.project_cores))
+        }
         write_text(
             paths.QUESTION_REPORT,
-            report.markdown(settings, design, states, stages, components, seeds_later, remaining),
+            report.markdown(
+                settings, design, states, stages, components, seeds_later, remaining, walls
+            ),
         )
         settled = sum(s.settled for s in states)
         finished = all(s.done for s in states)
@@ -265,8 +279,8 @@ def cmd_question(args: argparse.Namespace) -> None:
             + ", ".join(f"{v} {c}" for v, c in report.tally(states).items())
             + f"); CPU so far {cost.total:,.0f} s; "
             + (
-                f"to the cap at most {remaining:,.0f} s more CPU (≈ {remaining / 2 / 3600:.1f} h "
-                "on two cores)"
+                f"to the cap at most {remaining:,.0f} s more CPU, ≈ "
+                + ", ".join(f"{w / 3600:.1f} h on {n} cores" for n, w in walls.items())
                 if not finished
                 else "done"
             ),

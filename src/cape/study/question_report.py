@@ -238,6 +238,39 @@ def remaining(
     return total
 
 
+def projected_wall(
+    states: Sequence[RowState],
+    settings: QuestionSettings,
+    draws: Mapping[str, int],
+    cost: Cost,
+    later_seeds: int,
+    slots: int,
+) -> float:
+    """The wall time to the cap on ``slots`` single-core slots (2: this machine; N nodes × C
+    cores through the SLURM profile) if every open row stays open: stage after stage (a look
+    waits for its stage), each stage's trainings list-scheduled longest first, then its runs
+    spread over the slots (the profile's groups are a draw at one η and one seed, short beside
+    a training). At this study's measured costs; queue waits are not included."""
+    open_models = sorted({m for s in states if not s.done for m in s.row.models})
+    seed = cost.per_seed() if math.isfinite(cost.per_seed()) else 0.0
+    current = {m: draws.get(m, 0) for m in open_models}
+    wall = 0.0
+    for n in settings.stages:
+        new = {m: n - d for m, d in current.items() if n > d}
+        if not new:
+            continue
+        trainings = sorted(
+            (c for m, k in new.items() for c in [cost.per_draw(m)] * k if math.isfinite(c)),
+            reverse=True,
+        )
+        finish = [0.0] * max(1, slots)
+        for seconds in trainings:
+            finish[finish.index(min(finish))] += seconds
+        wall += max(finish) + sum(new.values()) * later_seeds * seed / max(1, slots)
+        current.update({m: n for m in new})
+    return wall
+
+
 def _fmt(value: float, digits: int = 3) -> str:
     return "–" if value is None or not math.isfinite(value) else f"{value:.{digits}g}"
 
@@ -250,6 +283,7 @@ def markdown(
     components: pd.DataFrame | None,
     later_seeds: int,
     remaining_cpu: float,
+    projections: Mapping[int, float] | None = None,
 ) -> str:
     """results/question/RESULTS.md: the stages, each row's decision and its intervals, where it
     stopped and why."""
@@ -291,10 +325,11 @@ def markdown(
     elif last and last.get("look at draws") == settings.stages[-1]:
         stop = f"the cap ({settings.stages[-1]} draws per model) was reached"
     else:
+        walls = ", ".join(f"{w / 3600:.1f} h on {n} cores" for n, w in (projections or {}).items())
         stop = (
             f"the run stopped after stage {last.get('stage', 0)}; `cape question` continues it "
-            f"(at most {remaining_cpu:,.0f} s more CPU to the cap, ≈ "
-            f"{remaining_cpu / 2 / 3600:.1f} h on two cores)"
+            f"(to the cap, if every open row stays open: at most {remaining_cpu:,.0f} s more "
+            f"CPU; wall time ≈ {walls or 'not measured'}, queue waits not included)"
         )
     lines += ["", f"**Where it stopped:** {stop}.", ""]
     lines += [
