@@ -196,6 +196,7 @@ def cmd_question(args: argparse.Namespace) -> None:
     from cape.io import write_text
     from cape.ownership import Output
     from cape.study import question_report as report
+    from cape.study.leaderboard import recipe
     from cape.study.question import RowState, evaluate, later_seeds, next_draws
     from cape.study.question_plan import Plan, QuestionSettings, run_overrides
 
@@ -269,7 +270,15 @@ def cmd_question(args: argparse.Namespace) -> None:
         write_text(
             paths.QUESTION_REPORT,
             report.markdown(
-                settings, design, states, stages, components, seeds_later, remaining, walls
+                settings,
+                design,
+                states,
+                stages,
+                components,
+                seeds_later,
+                remaining,
+                walls,
+                {m: recipe(config["models"][m]) for m in settings.models},
             ),
         )
         settled = sum(s.settled for s in states)

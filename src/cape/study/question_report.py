@@ -284,6 +284,7 @@ def markdown(
     later_seeds: int,
     remaining_cpu: float,
     projections: Mapping[int, float] | None = None,
+    recipes: Mapping[str, str] | None = None,
 ) -> str:
     """results/question/RESULTS.md: the stages, each row's decision and its intervals, where it
     stopped and why."""
@@ -299,6 +300,16 @@ def markdown(
         "`equivalent`: the two one-sided tests put the effect inside ±margin, no practical "
         "difference. docs/question.md says how to read it.",
         "",
+        *(
+            [
+                "Recipes: "
+                + "; ".join(f"{m.upper()} {recipes.get(m, '')}" for m in settings.models)
+                + " (SPEC §4.2: the question trains DDM as its authors drive it).",
+                "",
+            ]
+            if recipes
+            else []
+        ),
         "## Stages",
         "",
         "| stage | draws per model | trainings tried (failed) | holds | contradicted | "
