@@ -107,3 +107,15 @@ def test_a_bad_question_is_one_line(tmp_path: Path) -> None:
                    cwd=work)  # fmt: skip
     one_message(missing, "nope.yaml not found")
     assert not (work / "results").exists()
+
+
+def test_a_users_model_is_put_to_the_same_question() -> None:
+    """examples/extension.yaml's MLP (one module plus one config entry) against EPM: the same
+    five rows for the one pair, the stage plan adding both to the ground-truth study."""
+    result = cape("question", "--no-question-config", "--configfile", "examples/extension.yaml",
+                  "examples/question_mlp.yaml", "--dry-run", cwd=REPO_ROOT)  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert "5 rows (5 metrics × 1 pairs of epm, mlp)" in result.stdout
+    plan = yaml.safe_load(result.stdout.split("\n", 1)[1].rsplit("$ snakemake", 1)[0])
+    assert plan["question"]["plan"]["draws"] == {"epm": 3, "mlp": 3}
+    assert {"epm", "mlp"} <= set(plan["study"]["studies"]["truth"]["internal"])
