@@ -74,7 +74,7 @@ def test_the_question_runs_in_stages_resumes_and_settles_a_row(work: Path) -> No
     assert all(p.stat().st_mtime_ns == t for p, t in stamps.items())  # nothing redone
 
     question = work / "results" / "question"
-    stages = json.loads((question / "looks.json").read_text())["stages"]
+    stages = json.loads((question / "looks.json").read_text())["looks"]
     assert [s["look at draws"] for s in stages] == [2, 3]
     looks = pd.read_csv(question / "looks.csv")
     final = looks.sort_values("look").groupby(["claim", "comparison"]).tail(1)
