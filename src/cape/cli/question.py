@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import re
 import shlex
@@ -163,20 +164,21 @@ def _stop(proc: subprocess.Popen) -> None:
         proc.wait()
 
 
-def _chosen_seeds(settings: Any) -> int | None:
-    """The seeds per later draw an earlier run of the same question chose (looks.json), if any."""
+def _identity(settings: Any) -> dict[str, Any]:
+    """What an earlier run must share for its record to be this question's."""
+    return {"models": list(settings.models), "stages": list(settings.stages),
+            "study": settings.study, "etas": list(settings.etas), "seeds": settings.seeds,
+            "least_seeds": settings.least_seeds}  # fmt: skip
+
+
+def _earlier(settings: Any) -> dict[str, Any]:
+    """The record (looks.json) an earlier run of the same question left, or {}."""
     path = Path(paths.QUESTION_STATE)
-    if not path.is_file():
-        return None
     try:
-        state = json.loads(path.read_text())
+        state = json.loads(path.read_text()) if path.is_file() else {}
     except (OSError, ValueError):
-        return None
-    same = state.get("models") == list(settings.models) and state.get("stages") == list(
-        settings.stages
-    )
-    seeds = state.get("later_seeds")
-    return int(seeds) if same and isinstance(seeds, int) and seeds >= 1 else None
+        return {}
+    return state if isinstance(state, dict) and state.get("question") == _identity(settings) else {}
 
 
 def snakefile() -> str:
@@ -206,12 +208,17 @@ def cmd_question(args: argparse.Namespace) -> None:
     settings = QuestionSettings.from_config(config, " + ".join(files))
     design = settings.design()
     states = [RowState(row) for row in settings.rows()]
+    logs = [Path(paths.QUESTION, "logs", f"stage{k + 1}.log") for k in range(len(settings.stages))]
     outputs = [paths.QUESTION_STAGE, paths.QUESTION_LOOKS, paths.QUESTION_STATE,
-               paths.QUESTION_REPORT, paths.QUESTION_COMPONENTS]  # fmt: skip
+               paths.QUESTION_REPORT, paths.QUESTION_COMPONENTS, *logs,
+               Path(paths.QUESTION, "logs", "notebook.log")]  # fmt: skip
     if not args.dry_run:
         _claim(args, *(Output(Path(p), "question report") for p in outputs))
     draws = {m: settings.stages[0] for m in settings.models}
     seeds_later = settings.seeds
+    earlier = _earlier(settings)  # a resumed run keeps its seeds, adds to its wall times
+    walls_before = {int(r["stage"]): float(r["wall_s"]) for r in earlier.get("looks", [])}
+    seeds_said = f"the study's {settings.seeds} (the costs were not measured)"
     started = time.perf_counter()
     stages: list[dict[str, Any]] = []
     components = None
@@ -253,12 +260,20 @@ def cmd_question(args: argparse.Namespace) -> None:
                 seeds_later, components = later_seeds(
                     runs, states, n, settings.seeds, ratio, settings.least_seeds
                 )
-            # a resumed run keeps the seeds its first run chose (the CPU it reads may differ)
-            seeds_later = chosen if (chosen := _chosen_seeds(settings)) else seeds_later
-        stages.append(report.stage_record(k, n, draws, states, cost, time.perf_counter() - tick))
+                seeds_said = (
+                    f"{seeds_later}, the two-stage optimum at a draw costing {ratio:.2g} seeds' "
+                    "runs (the median over the open rows, below)"
+                    if components is not None and len(components)
+                    else f"the study's {settings.seeds} (no open row had two seeds or more to "
+                    "measure the spread within a draw)"
+                )
+            if isinstance(earlier.get("later_seeds"), int):  # the CPU it reads may differ now
+                seeds_later = min(max(earlier["later_seeds"], settings.least_seeds), settings.seeds)
+                seeds_said = f"{seeds_later}, as the first run of this question chose"
+        wall = time.perf_counter() - tick + walls_before.get(k + 1, 0.0)
+        stages.append(report.stage_record(k, n, draws, states, cost, wall))
         write_text(paths.QUESTION_LOOKS, report.looks_frame(states).to_csv(index=False))
-        state = {"models": list(settings.models), "stages": list(settings.stages),
-                 "later_seeds": seeds_later, "looks": stages}  # fmt: skip
+        state = {"question": _identity(settings), "later_seeds": seeds_later, "looks": stages}
         write_text(paths.QUESTION_STATE, json.dumps(state, indent=1, default=str))
         if components is not None:
             write_text(paths.QUESTION_COMPONENTS, components.to_csv(index=False))
@@ -275,24 +290,27 @@ def cmd_question(args: argparse.Namespace) -> None:
                 states,
                 stages,
                 components,
-                seeds_later,
+                seeds_said,
                 remaining,
                 walls,
                 {m: recipe(config["models"][m]) for m in settings.models},
+                report.further_draw(cost, settings, seeds_later),
             ),
         )
         settled = sum(s.settled for s in states)
         finished = all(s.done for s in states)
+        if finished:
+            ahead = "done"
+        elif math.isfinite(remaining):
+            ahead = f"to the cap at most {remaining:,.0f} s more CPU, ≈ " + ", ".join(
+                f"{w / 3600:.1f} h on {n} cores" for n, w in walls.items() if math.isfinite(w)
+            )
+        else:
+            ahead = "to the cap: its cost is not measured (a benchmark file is missing)"
         print(
             f"stage {k + 1}: {settled} of {len(states)} rows settled ("
             + ", ".join(f"{v} {c}" for v, c in report.tally(states).items())
-            + f"); CPU so far {cost.total:,.0f} s; "
-            + (
-                f"to the cap at most {remaining:,.0f} s more CPU, ≈ "
-                + ", ".join(f"{w / 3600:.1f} h on {n} cores" for n, w in walls.items())
-                if not finished
-                else "done"
-            ),
+            + f"); CPU so far {cost.total:,.0f} s; {ahead}",
             flush=True,
         )
         if finished:

@@ -228,14 +228,17 @@ def remaining(
     """The most CPU left to the cap: every model of an open row taken to the last stage's
     draws, each new draw at this study's measured cost (training and its seeds' runs)."""
     open_models = {m for s in states if not s.done for m in s.row.models}
-    seed = cost.per_seed()
     total = 0.0
-    for m in open_models:
-        per = cost.per_draw(m)
-        per = per if math.isfinite(per) else 0.0
-        per += (seed if math.isfinite(seed) else 0.0) * later_seeds
+    for m in open_models:  # NaN where a cost is not measured: never counted as zero
+        per = cost.per_draw(m) + cost.per_seed() * later_seeds
         total += max(0, settings.stages[-1] - draws.get(m, 0)) * per
     return total
+
+
+def further_draw(cost: Cost, settings: QuestionSettings, later_seeds: int) -> dict[str, float]:
+    """What one more draw of each model costs the question, CPU seconds: its trainings and
+    solvers (per draw, failed trainings included) and ``later_seeds`` seeds of NMPC runs."""
+    return {m: cost.per_draw(m) + cost.per_seed() * later_seeds for m in settings.models}
 
 
 def projected_wall(
@@ -252,17 +255,17 @@ def projected_wall(
     spread over the slots (the profile's groups are a draw at one η and one seed, short beside
     a training). At this study's measured costs; queue waits are not included."""
     open_models = sorted({m for s in states if not s.done for m in s.row.models})
-    seed = cost.per_seed() if math.isfinite(cost.per_seed()) else 0.0
+    seed = cost.per_seed()
     current = {m: draws.get(m, 0) for m in open_models}
     wall = 0.0
     for n in settings.stages:
         new = {m: n - d for m, d in current.items() if n > d}
         if not new:
             continue
-        trainings = sorted(
-            (c for m, k in new.items() for c in [cost.per_draw(m)] * k if math.isfinite(c)),
-            reverse=True,
-        )
+        trainings = [cost.per_draw(m) for m, k in new.items() for _ in range(k)]
+        trainings.sort(reverse=True)
+        if any(not math.isfinite(c) for c in trainings) or not math.isfinite(cost.per_seed()):
+            return math.nan  # a cost not measured: no projection
         finish = [0.0] * max(1, slots)
         for seconds in trainings:
             finish[finish.index(min(finish))] += seconds
@@ -281,10 +284,11 @@ def markdown(
     states: Sequence[RowState],
     stages: Sequence[Mapping[str, Any]],
     components: pd.DataFrame | None,
-    later_seeds: int,
+    seeds_said: str,
     remaining_cpu: float,
     projections: Mapping[int, float] | None = None,
     recipes: Mapping[str, str] | None = None,
+    further: Mapping[str, float] | None = None,
 ) -> str:
     """results/question/RESULTS.md: the stages, each row's decision and its intervals, where it
     stopped and why."""
@@ -313,7 +317,7 @@ def markdown(
         "## Stages",
         "",
         "| stage | draws per model | trainings tried (failed) | holds | contradicted | "
-        "equivalent | inconclusive | open | CPU (s) | wall (s) |",
+        "equivalent | inconclusive | open | CPU so far (s) | wall of the stage (s) |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in stages:
@@ -329,25 +333,51 @@ def markdown(
         )
     open_rows = [s for s in states if not s.done]
     last = stages[-1] if stages else {}
+    undecided = [s for s in states if s.done and not s.settled]
     if all(s.settled for s in states):
         stop = "every row is settled"
-    elif not open_rows:
-        stop = "every row is settled or inconclusive for good (lost draws, or the cap)"
     elif last and last.get("look at draws") == settings.stages[-1]:
-        stop = f"the cap ({settings.stages[-1]} draws per model) was reached"
+        stop = (
+            f"the cap ({settings.stages[-1]} draws per model) was reached with "
+            f"{len(undecided)} rows inconclusive (each row's `why` says why)"
+        )
+    elif not open_rows:
+        stop = (
+            f"every row is settled or inconclusive for good ({len(undecided)}: a draw without a "
+            "value, see their `why`)"
+        )
     else:
-        walls = ", ".join(f"{w / 3600:.1f} h on {n} cores" for n, w in (projections or {}).items())
+        walls = ", ".join(
+            f"{w / 3600:.1f} h on {n} cores"
+            for n, w in (projections or {}).items()
+            if math.isfinite(w)
+        )
+        cpu = f"{remaining_cpu:,.0f} s" if math.isfinite(remaining_cpu) else "not measured"
         stop = (
             f"the run stopped after stage {last.get('stage', 0)}; `cape question` continues it "
-            f"(to the cap, if every open row stays open: at most {remaining_cpu:,.0f} s more "
-            f"CPU; wall time ≈ {walls or 'not measured'}, queue waits not included)"
+            f"(to the cap, if every open row stays open: at most {cpu} more CPU; wall time ≈ "
+            f"{walls or 'not measured'}; the cluster's by this report's own list scheduling, "
+            "without the SLURM profile's per-job overheads or queue waits)"
         )
     lines += ["", f"**Where it stopped:** {stop}.", ""]
     lines += [
-        f"Seeds per draw: {settings.seeds} for the first {settings.stages[0]} draws, "
-        f"{later_seeds} for later ones (the two-stage optimum from the first look's variance "
-        "components, below).",
+        f"Seeds per draw: {settings.seeds} for the first {settings.stages[0]} draws; for later "
+        f"ones {seeds_said}.",
         "",
+        *(
+            [
+                "One further draw costs, in CPU (its trainings and solvers, then its seeds' "
+                "NMPC runs): "
+                + "; ".join(
+                    f"{m.upper()} {v:,.0f} s" if math.isfinite(v) else f"{m.upper()} not measured"
+                    for m, v in further.items()
+                )
+                + ".",
+                "",
+            ]
+            if further
+            else []
+        ),
         "## Rows",
         "",
         "| claim | comparison | decision | at draws | estimate | interval (difference) | "
