@@ -24,8 +24,10 @@ def main() -> None:
     parser.add_argument("--rows", type=int, default=15)
     args = parser.parse_args()
     design = Design(tuple(args.stages), args.rows)
-    print("| law | σ_b/σ_w | false verdict, no effect | equivalent at the margin | family error "
-          "| power at 2 σ_b | mean draws used |")
+    print(
+        "| law | σ_b/σ_w | false verdict, no effect | equivalent at the margin | family error "
+        "| power at 2 σ_b | mean draws used |"
+    )
     print("|---|---|---|---|---|---|---|")
     for law in calib.LAWS:
         for ratio in (0.2, 1.0, 10.0) if law != "failures" else (1.0,):
@@ -37,8 +39,10 @@ def main() -> None:
             fam = calib.family_error(design, law, 8, 7, max(effect, margin), margin, ratio,
                                      trials=n // 10)  # fmt: skip
             power, used = calib.power(design, law, effect, ratio, trials=n)
-            print(f"| {law} | {ratio:g} | {false:.2%} | {eq:.2%} | {fam:.1%} | {power:.1%} | "
-                  f"{used:.1f} |")
+            print(
+                f"| {law} | {ratio:g} | {false:.2%} | {eq:.2%} | {fam:.1%} | {power:.1%} | "
+                f"{used:.1f} |"
+            )
 
 
 if __name__ == "__main__":
