@@ -62,8 +62,11 @@ def test_the_question_runs_in_stages_resumes_and_settles_a_row(work: Path) -> No
     rest = proc.communicate(timeout=300)[0]
     assert proc.returncode == 143, "".join(seen) + rest
     assert "terminated" in rest
+    time.sleep(2)  # the jobs' own SIGTERM handling
     left = subprocess.run(["pgrep", "-f", f"snakemake.*{work}"], capture_output=True, text=True)
     assert not left.stdout.strip(), "Snakemake outlived the command"
+    jobs = [p for p in Path("/proc").glob("[0-9]*/cwd") if _resolves_to(p, work)]
+    assert not jobs, "a job of Snakemake's outlived the command"
     first_runs = sorted((work / "results" / "runs").rglob("metrics.json"))
     stamps = {p: p.stat().st_mtime_ns for p in first_runs}
     assert any("rep0" in str(p) for p in first_runs)
@@ -90,6 +93,14 @@ def test_the_question_runs_in_stages_resumes_and_settles_a_row(work: Path) -> No
         not (runs / "learned").exists()
         and not (runs / "truth" / "rep2" / "truth" / "truth").exists()
     )
+
+
+def _resolves_to(link: Path, folder: Path) -> bool:
+    """A process whose working folder is ``folder`` (a job runs in the study's folder)."""
+    try:
+        return link.resolve() == folder.resolve()
+    except OSError:
+        return False
 
 
 def test_a_bad_question_is_one_line(tmp_path: Path) -> None:

@@ -149,11 +149,31 @@ def _snakemake(
         )
 
 
+def _descendants(pid: int) -> list[int]:
+    """Every process below ``pid`` (from /proc): Snakemake starts each job in a session of its
+    own, so signalling Snakemake's session does not reach them."""
+    parents: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            parents.setdefault(int(fields[1]), []).append(int(stat.parent.name))
+    found, todo = [], [pid]
+    while todo:
+        for child in parents.get(todo.pop(), []):
+            found.append(child)
+            todo.append(child)
+    return found
+
+
 def _stop(proc: subprocess.Popen) -> None:
-    """Stop Snakemake and every job it started (its session), then wait for them: a job writes
+    """Stop Snakemake and every job it started, then wait for Snakemake: a job writes
     atomically, so what it had not finished is simply missing, and the next run redoes it."""
     import signal
 
+    jobs = _descendants(proc.pid)  # before Snakemake ends and they are reparented
+    for pid in jobs:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.kill(pid, signal.SIGTERM)
     with contextlib.suppress(ProcessLookupError):
         os.killpg(proc.pid, signal.SIGTERM)
     try:
