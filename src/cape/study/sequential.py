@@ -75,9 +75,10 @@ def boundaries(
     previous, out = 0, []
     cumulative = spent(looks, alpha, rho)
     for k, n in enumerate(looks):
-        block = rng.standard_normal((trials, n - previous))
-        total += block.sum(axis=1)
-        squares += (block**2).sum(axis=1)
+        for start in range(previous, n, 10):  # at most 10 draws' paths in memory at once
+            block = rng.standard_normal((trials, min(10, n - start)))
+            total += block.sum(axis=1)
+            squares += (block**2).sum(axis=1)
         previous = n
         mean = total / n
         sd = np.sqrt(np.maximum(squares - n * mean**2, 0.0) / (n - 1))
