@@ -233,7 +233,7 @@ def cmd_question(args: argparse.Namespace) -> None:
                paths.QUESTION_REPORT, paths.QUESTION_COMPONENTS, *logs,
                Path(paths.QUESTION, "logs", "notebook.log")]  # fmt: skip
     if not args.dry_run:
-        _claim(args, *(Output(Path(p), "question report") for p in outputs))
+        _claim(args, *(Output(Path(p), "question report", option="output") for p in outputs))
     draws = {m: settings.stages[0] for m in settings.models}
     seeds_later = settings.seeds
     earlier = _earlier(settings)  # a resumed run keeps its seeds, adds to its wall times
