@@ -204,24 +204,27 @@ def test_the_policy_module_runs_without_the_cli(tmp_path: Path) -> None:
 
 
 # --- the policy's own corners (cape.ownership, in process) ------------------------------------
-def test_a_legacy_model_folder_holding_other_rules_files_is_the_models(tmp_path: Path) -> None:
-    """Snakemake deletes a training's model.pt, meta.json and loss.csv before it reruns it; a
-    folder from before owner records then holds only what other rules or a killed training
-    left, and stays the training's. A file of the user's makes it the user's."""
+def test_a_model_folder_is_the_models_only_by_its_owner_record(tmp_path: Path) -> None:
+    """Snakemake deletes a training's model.pt, meta.json and loss.csv before it reruns it; the
+    folder, with what other rules or a killed training left, stays the training's by its owner
+    record. A folder of files without one is refused in one line that says what to do."""
     from cape.cli.models import _model_output
     from cape.errors import CapeError
     from cape.ownership import claimed
 
     folder = tmp_path / "seed0"
-    folder.mkdir()
+    with claimed([_model_output(folder, "dpm", None)], "test"):
+        folder.mkdir()
+        (folder / "model.pt").write_bytes(b"x")
+    (folder / "model.pt").unlink()
     (folder / "health.json").write_text("{}")
     (folder / "checkpoint-0123456789abcdef.pt").write_bytes(b"x")
     with claimed([_model_output(folder, "dpm", None)], "test"):
         pass
     (tmp_path / "other").mkdir()
-    (tmp_path / "other" / "thesis.tex").write_text("mine")
+    (tmp_path / "other" / "health.json").write_text("{}")
     with (
-        pytest.raises(CapeError, match=r"thesis\.tex"),
+        pytest.raises(CapeError, match=r"no owner record.*delete it first"),
         claimed([_model_output(tmp_path / "other", "dpm", None)], "test"),
     ):
         pass

@@ -89,13 +89,6 @@ def sidecar(path: str | Path) -> Path:
     return path.with_name(path.name + ".sha256")
 
 
-def write_sidecar(path: str | Path) -> None:
-    """Record ``path``'s digest beside it (atomically)."""
-    from cape.io import write_text
-
-    write_text(sidecar(path), file_digest(path) + "\n")
-
-
 def check_sidecar(path: str | Path, fix: str) -> None:
     """Raise unless ``path`` matches the digest recorded beside it."""
     recorded = sidecar(path)

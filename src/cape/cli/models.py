@@ -130,30 +130,10 @@ def cmd_train(args: argparse.Namespace) -> None:
 
 def _model_output(out: Path, model: str, replicate: int | None) -> Any:
     """A model folder as an output (``cape.ownership``): a trained ``model`` of ``replicate``
-    (None: a training that is no draw), as ``cape train`` and ``cape draw`` write it. A folder
-    from before owner records is recognised by what it holds: only the files the workflow puts
-    there (another rule's health, frozen Φ or network, a training's checkpoint), and a model
-    only if its ``meta.json`` names this one (Snakemake deletes the model's files first)."""
-    from fnmatch import fnmatch
+    (None: a training that is no draw), as ``cape train`` and ``cape draw`` write it."""
+    from cape.ownership import Output
 
-    from cape.models.trained import read_meta
-    from cape.ownership import Output, is_owner_record
-
-    def recognise(folder: Path) -> str | None:
-        names = {p.name for p in folder.iterdir() if not is_owner_record(p)}
-        known = set(paths.MODEL_FILES) | set(paths.BESIDE_A_MODEL)
-        if any(n not in known and not fnmatch(n, paths.CHECKPOINT_GLOB) for n in names):
-            return None  # a file the workflow never writes here: the user's
-        if not names & set(paths.MODEL_FILES):
-            return identity
-        try:
-            meta = read_meta(folder)
-        except CapeError:
-            return None
-        return _model_identity(str(meta["name"]), meta.get("replicate"))
-
-    identity = _model_identity(model, replicate)
-    return Output(out, "trained model", identity, folder=True, recognise=recognise)
+    return Output(out, "trained model", _model_identity(model, replicate), folder=True)
 
 
 def _model_identity(model: str, replicate: int | None) -> str:
@@ -362,18 +342,8 @@ def cmd_export_network(args: argparse.Namespace) -> None:
 
     meta = read_meta(folder)
     target = Path(args.out) if args.out else Path(folder) / "network.npz"
-
-    def recognise(path: Path) -> str | None:  # a network.npz from before owner records
-        from cape.io import read_npz
-
-        try:
-            same = str(read_npz(path).get("weights_sha256")) == meta.get("weights_sha256")
-        except CapeError:
-            return None
-        return identity if same else None
-
     identity = _model_identity(name, model_replicate(meta))
-    _claim(args, Output(target, "network", identity, (".npz",), recognise=recognise))
+    _claim(args, Output(target, "network", identity, (".npz",)))
     out = export_network(folder, target, expected_name=name)
     print(f"wrote {out}: the {name} network for the closed loop")
     compile_settings = _config(args).get("rollout", {}).get("compile")

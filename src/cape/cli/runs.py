@@ -23,7 +23,6 @@ from cape.cli.common import (
     _model_folders,
     command,
 )
-from cape.errors import CapeError
 from cape.layout.names import TRUTH
 
 PLANT_KINDS = "dpm|ddm|epm (learned), dpm-fixed|ddm-fixed|epm-fixed, or truth"
@@ -144,24 +143,10 @@ def cmd_rollout(args: argparse.Namespace) -> None:
 
 
 def _run_output(out: Path, run: Any) -> Any:
-    """A run folder as an output (``cape.ownership``): the run ``run``. A folder from before
-    owner records is recognised by its ``metrics.json``."""
-    from cape.layout.record import read_metrics
-    from cape.layout.runs import RunId
+    """A run folder as an output (``cape.ownership``): the run ``run``."""
     from cape.ownership import Output
 
-    def identity(r: RunId) -> str:
-        return "/".join(r.parts())
-
-    def recognise(folder: Path) -> str | None:
-        try:
-            m = read_metrics(folder / "metrics.json", expected=run)
-        except CapeError:
-            return None
-        return identity(RunId(m["study"], m["plant"], m["internal"], m["controller"], m["eta"],
-                              m["seed"], m["replicate"]))  # fmt: skip
-
-    return Output(out, "run", identity(run), folder=True, recognise=recognise)
+    return Output(out, "run", "/".join(run.parts()), folder=True)
 
 
 def _plot_rollout_arguments(p: argparse.ArgumentParser) -> None:

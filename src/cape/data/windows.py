@@ -14,7 +14,6 @@ from typing import Any
 import numpy as np
 
 FEATURES = ("vx", "vy", "omega", "T_fb", "delta_fb", "dT", "ddelta")
-LABELS = ("vx", "vy", "omega")
 
 
 @dataclass(frozen=True)

@@ -72,21 +72,6 @@ def check_table_models(table: pd.DataFrame, path: str, replicate: int, model_roo
             )
 
 
-def read_trainings(
-    model_root: str, replicates: Sequence[int], models: Sequence[str]
-) -> tuple[dict[tuple[int, str], pd.DataFrame], dict[tuple[int, str], float]]:
-    """(replicate, model) → loss.csv and → meta.json's best validation loss, for the training
-    checks of ``cape.models.health``."""
-    from cape.models.trained import read_training
-
-    losses, best = {}, {}
-    for r in replicates:
-        for m in models:
-            losses[(r, m)], meta = read_training(paths.model_under(model_root, m, r))
-            best[(r, m)] = float(meta["best_val_loss"])
-    return losses, best
-
-
 def read_draws(
     model_root: str, replicates: Sequence[int], models: Sequence[str]
 ) -> dict[tuple[int, str], dict]:

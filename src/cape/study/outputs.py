@@ -115,8 +115,3 @@ def declared(name: str) -> bool:
 def figure_heading(name: str, title: str) -> str:
     """The heading a notebook puts above figure ``name`` ("Figure 2: …" for ``fig02_…``)."""
     return f"Figure {int(name[3:5])}: {title}"
-
-
-def notebooks_of(kind: str) -> tuple[str, ...]:
-    """The per-study notebooks a study of ``kind`` gets."""
-    return (kind, "failures")

@@ -6,7 +6,6 @@ the study's configuration; where the files are fetched from is configuration.
 
 from __future__ import annotations
 
-UPSTREAM_REPOSITORY = "jainachin/bayesrace"
 UPSTREAM_COMMIT = "0a23cf950d5ec97c12c373622a4606c2321ad7ed"
 
 BAYESRACE_FILES: dict[str, str] = {
