@@ -206,8 +206,8 @@ def test_the_setup_notebook_shows_the_figure_and_tables_it_saves(tmp_path: Path)
     """Through the real rule (papermill, then nbconvert), from a checkout whose path has a
     space (every path reaching a shell is quoted): the executed notebook holds the saved PNG
     itself, at 100 pixels per figure inch, and each table as its saved .md prints it; the HTML
-    copy embeds the same image and names the config sections instead of printing their
-    JSON."""
+    copy embeds the same image; the config reaches it as a job specification file of just
+    the sections it reads."""
     checkout = _checkout(tmp_path / "my projects" / "cape")
     work = _workdir(tmp_path / "my projects")
     result = subprocess.run(
@@ -230,9 +230,12 @@ def test_the_setup_notebook_shows_the_figure_and_tables_it_saves(tmp_path: Path)
     page = _Page((work / "results/notebooks/setup.html").read_text())
     assert [_digest(p) for p in page.pngs] == [_digest(figure.read_bytes())]
     text = "".join(page.text)
-    assert 'config_json = "{' not in text  # the JSON papermill injected ...
-    sections = "controllers, disturbances, models"
-    assert f'config_json = "…"  # JSON of the config sections {sections}' in text
+    # the notebook's job specification: a short path, the file holding just its sections
+    spec = re.search(r'spec = "(results/specs/notebook_setup/[0-9a-f]{16}\.json)"', text)
+    assert spec is not None, text[:2000]
+    assert sorted(json.loads((work / spec.group(1)).read_text())) == [
+        "controllers", "disturbances", "models"
+    ]  # fmt: skip
     assert "Study set-up" in text and "Table 3" in text  # ... and the rest of the page
 
 

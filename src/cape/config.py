@@ -23,6 +23,8 @@ from cape.layout.names import TRUTH, plant_names
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_CONFIG = Path("config") / "config.yaml"
+PRESENTATION_KEYS = ("label", "color")
+"""A model's or controller's keys that only name or colour it: no job's result reads them."""
 
 
 def _fill_defaults(instance: Any, schema: dict[str, Any]) -> None:
@@ -316,16 +318,28 @@ def load_config(path: str | Path = DEFAULT_CONFIG) -> dict[str, Any]:
     return validate_config(config, str(path))
 
 
-def config_from_args(config_path: str | None, config_json: str | None) -> dict[str, Any]:
-    """The config a command works with: the sections a rule passed as JSON, else the file."""
+def config_from_args(
+    config_path: str | None, config_json: str | None, spec: str | None = None
+) -> dict[str, Any]:
+    """The config a command works with: the sections of a job specification file (``spec``,
+    how the workflow passes them) or given as JSON, else the config file."""
+    if spec:
+        try:
+            config_json = Path(spec).read_text()
+        except OSError as exc:
+            raise CapeError(
+                f"--spec {spec}: cannot read the job specification ({exc.strerror}); "
+                "give the file the workflow wrote under results/specs/"
+            ) from None
     if config_json:
+        source = f"--spec {spec}" if spec else "--config-json"
         try:
             sections = json.loads(config_json)
         except json.JSONDecodeError as exc:
-            raise CapeError(f"--config-json is not valid JSON ({exc})") from exc
+            raise CapeError(f"{source} is not valid JSON ({exc})") from exc
         if not isinstance(sections, dict):
-            raise CapeError("--config-json must be a JSON object of config sections")
-        checked_once(config_json, lambda: validate_config(sections, "--config-json", partial=True))
+            raise CapeError(f"{source} must be a JSON object of config sections")
+        checked_once(config_json, lambda: validate_config(sections, source, partial=True))
         return sections
     return load_config(config_path or DEFAULT_CONFIG)
 

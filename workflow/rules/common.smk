@@ -1,6 +1,5 @@
 # Shared helpers: config validation and the names of files the rules produce.
 
-import json
 import os
 import shlex
 import sys
@@ -23,6 +22,7 @@ from cape.study.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS
 from cape.study.question_plan import Plan, QuestionSettings, stage_runs
 from cape.study.stale import missing_runs
 from cape.tracks.manifest import BAYESRACE_FILES
+from cape.workflow import specs
 
 
 # Interrupted by SIGKILL, a run leaves its locks: the main Snakemake process removes them when
@@ -77,26 +77,19 @@ wildcard_constraints:
     scope="|".join(SCOPES),
 
 
+def job_spec(job, text):
+    """The path of a job's specification (cape.workflow.specs): its command reads the file."""
+    return specs.spec_file(job, text)
+
+
+def notebook_spec(name):
+    """The specification of notebook ``name``: the config sections it declares it reads."""
+    return job_spec(f"notebook_{name}", specs.sections(config, *NOTEBOOKS_DECLARED[name].reads))
+
+
 def track_files():
     """The ten verified BayesRace files under the resources folder."""
     return [f"{TRACK_DIR}/{name}" for name in BAYESRACE_FILES]
-
-
-def config_json(*sections):
-    """Only the named config sections, as JSON for a command's --config-json.
-
-    Passing just what a job reads means editing one section reruns only the jobs that use it
-    (the number of training replicates is the grid's, never one job's).
-    """
-    chosen = {name: config[name] for name in sections}
-    if "training" in chosen:
-        chosen["training"] = {
-            k: v for k, v in chosen["training"].items() if k not in ("replicates", "max_trainings")
-        }
-    return json.dumps(chosen, sort_keys=True)
-
-
-PRESENTATION_KEYS = ("label", "color")
 
 
 def training_seed(k):
@@ -108,16 +101,6 @@ def training_seed(k):
 TRAINING_FOLDER = paths.TRAINING
 MODEL_FOLDER = paths.MODEL  # a model's draw
 MAX_TRAININGS = int(config["training"].get("max_trainings") or default_max_trainings(REPLICATES))
-
-
-def health_config_json(model):
-    """What a training's health check reads: the split and the checks' settings, the bar's
-    models narrowed to this one (so that naming a new model there reruns no other check)."""
-    health = dict(config["training"]["health"])
-    health["models"] = [m for m in health.get("models", []) if m == model]
-    return json.dumps(
-        {"data": {"split": config["data"]["split"]}, "training": {"health": health}}, sort_keys=True
-    )
 
 
 def draw_choice(wildcards):
@@ -149,25 +132,6 @@ def draw_inputs(wildcards):
         "meta": f"{chosen}/meta.json",
         "losses": f"{chosen}/loss.csv",
     }
-
-
-def model_config_json(model, seed):
-    """What training reads: the model's own entry (less its label and colour), the training's
-    seed, threads and kernels, the sampling time and the split. Nothing else, so that unrelated
-    config edits never retrain a model."""
-    spec = {k: v for k, v in config["models"][model].items() if k not in PRESENTATION_KEYS}
-    training = {k: config["training"][k] for k in ("threads", "fused_adam", "compile")}
-    kernels = {k: v for k, v in config["training"].get("kernels", {}).items() if v is not None}
-    if kernels:  # unset pins change nothing, so they are not part of a training's identity
-        training["kernels"] = kernels
-    return json.dumps(
-        {
-            "models": {model: spec},
-            "training": {**training, "seed": int(seed)},
-            "data": {k: config["data"][k] for k in ("ts", "split")},
-        },
-        sort_keys=True,
-    )
 
 
 def trained_models(replicate=0):
@@ -261,52 +225,12 @@ def solver_inputs(wildcards):
     return {"raceline": raceline_path(), **internal}
 
 
-def rollout_config_json(controller, *names, solver=False):
-    """What a run reads: the track data, the reference, the disturbances, the run settings,
-    this controller's gains (not its label) and the entries of the models its plant and internal model ``names``
-    read (not their label or colour), so that adding a model or recolouring one reruns nothing
-    else. A solver (``solver=True``) is not given what only judges a run (RUN_ONLY_KEYS)."""
-    sections = {k: config[k] for k in ("tracks", "data", "reference", "disturbances", "rollout")}
-    if solver:
-        sections["rollout"] = {k: v for k, v in config["rollout"].items() if k not in RUN_ONLY_KEYS}
-    sections["models"] = {
-        name: {k: v for k, v in entry.items() if k not in PRESENTATION_KEYS}
-        for name, entry in models_read(config["models"], *names).items()
-    }
-    gains = {k: v for k, v in config["controllers"][controller].items() if k not in PRESENTATION_KEYS}
-    sections["controllers"] = {controller: gains}
-    return json.dumps(sections, sort_keys=True)
-
-
-# rollout settings that judge or bound a run, which no controller's NLP reads
-RUN_ONLY_KEYS = ("plant_envelope", "failure_window")
-
-
-def export_config_json():
-    """What exporting a network reads: how its Φ is compiled."""
-    return json.dumps({"rollout": {"compile": config["rollout"]["compile"]}}, sort_keys=True)
-
-
 # Every run of the grid, each with the run that computes it (a run asked for by two studies,
 # the ablation's diagonal, is computed once): cape.study.grid, which `cape aggregate` also calls
 GRID = study_grid(config, SOURCE)
 RUN_FOLDER = str(RunId.wildcards().folder())  # a run's files, its log and its figure, as
 RUN_LOG = str(RunId.wildcards().folder(paths.log("runs")))  # the rules' wildcard patterns
 RUN_STEM = RunId.wildcards().stem()
-
-
-def grid_config_json():
-    """What cape.study.grid.study_grid reads, for `cape aggregate` to build the same grid: the
-    study section, η, the number of draws and the controllers. In the config's order, not
-    sorted: the studies' order decides which folder computes a shared run."""
-    return json.dumps(
-        {
-            "study": config["study"],
-            "disturbances": {"eta": ETAS},
-            "training": {"replicates": REPLICATES},
-            "controllers": config["controllers"],
-        }
-    )
 
 
 def rollout_targets(replicates=None):
@@ -319,6 +243,7 @@ def rollout_targets(replicates=None):
 NOTEBOOKS = os.path.join(workflow.basedir, "notebooks")  # beside the Snakefile, whatever -d is
 TABLE_EXTS = [".csv", ".md", ".tex"]
 STUDIES = config["study"]["studies"]
+NOTEBOOKS_DECLARED = {**STUDY_NOTEBOOKS, **WHOLE_STUDY_NOTEBOOKS}
 
 
 def studies_of_kind(kind):
@@ -329,7 +254,7 @@ def studies_of_kind(kind):
 
 def figures(notebook, folder, ext):
     """The figures a notebook declares (cape.study.outputs), as files in ``folder``."""
-    declared = {**STUDY_NOTEBOOKS, **WHOLE_STUDY_NOTEBOOKS}[notebook]
+    declared = NOTEBOOKS_DECLARED[notebook]
     return [f"{folder}/{name}{ext}" for name in declared.figures]
 
 
@@ -337,7 +262,7 @@ def reported_figures(notebook, folder, caption, category):
     """The PNG copies of a notebook's figures for the report, each labelled with its number and
     its title (cape.study.outputs): a category then lists its figures in order, by what they
     show, rather than by file name under one shared caption."""
-    declared = {**STUDY_NOTEBOOKS, **WHOLE_STUDY_NOTEBOOKS}[notebook]
+    declared = NOTEBOOKS_DECLARED[notebook]
     return [
         in_report(
             f"{folder}/{name}.png",
@@ -351,7 +276,7 @@ def reported_figures(notebook, folder, caption, category):
 
 def tables(notebook, folder):
     """The tables a notebook declares, as .csv, .md and .tex files in ``folder``."""
-    declared = {**STUDY_NOTEBOOKS, **WHOLE_STUDY_NOTEBOOKS}[notebook]
+    declared = NOTEBOOKS_DECLARED[notebook]
     return [f"{folder}/{name}{ext}" for name in declared.tables for ext in TABLE_EXTS]
 
 
@@ -397,12 +322,9 @@ def scorecard_inputs(wildcards):
     }
 
 
-def papermill_args(**parameters):
-    """``-r NAME VALUE`` for each of a notebook's parameters (lists joined by commas), quoted."""
-    def text(value):
-        return ",".join(map(str, value)) if isinstance(value, (list, tuple)) else str(value)
-
-    return " ".join(f"-r {name} {shlex.quote(text(value))}" for name, value in parameters.items())
+def papermill_args(job, **parameters):
+    """``-f FILE``: a notebook's parameters, written as job ``job``'s specification."""
+    return f"-f {shlex.quote(job_spec(job, specs.notebook_parameters(parameters)))}"
 
 
 def job_outputs(name, **wildcards):

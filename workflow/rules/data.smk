@@ -7,7 +7,7 @@ rule dataset:
     output:
         paths.DATASET,
     params:
-        cfg=lambda wildcards: config_json("tracks", "data"),
+        spec=lambda wildcards: job_spec("dataset", specs.sections(config, "tracks", "data")),
     conda:
         CAPE_ENV
     log:
@@ -15,4 +15,4 @@ rule dataset:
     benchmark:
         paths.benchmark("data", "{track}.tsv")
     shell:
-        "cape data --track {wildcards.track} --out {output:q} --config-json {params.cfg:q} > {log:q} 2>&1"
+        "cape data --track {wildcards.track} --out {output:q} --spec {params.spec:q} > {log:q} 2>&1"

@@ -10,11 +10,11 @@ rule figure_tracks:
         png=paths.figures("tracks_and_data.png"),
     params:
         data=" ".join(f"--data {shlex.quote(f'{t}={paths.dataset(t)}')}" for t in DATA_TRACKS),
-        cfg=lambda wildcards: config_json("tracks", "data"),
+        spec=lambda wildcards: job_spec("figure_tracks", specs.sections(config, "tracks", "data")),
     conda:
         CAPE_ENV
     log:
         paths.log("figures", "tracks_and_data.log"),
     shell:
         "cape plot-tracks {params.data} --out {output.pdf:q} --out {output.png:q}"
-        " --config-json {params.cfg:q} > {log:q} 2>&1"
+        " --spec {params.spec:q} > {log:q} 2>&1"

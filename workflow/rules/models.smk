@@ -12,7 +12,7 @@ rule train:
         meta=f"{TRAINING_FOLDER}/meta.json",
         losses=f"{TRAINING_FOLDER}/loss.csv",
     params:
-        cfg=lambda wildcards: model_config_json(wildcards.model, int(wildcards.training_seed)),
+        spec=lambda wildcards: job_spec("train", specs.training(config, wildcards.model, int(wildcards.training_seed))),
         out=lambda wildcards, output: os.path.dirname(output.weights),
     threads: config["training"]["threads"]
     # the longest training first (EPM's 3000 epochs are the study's critical path), and every
@@ -33,7 +33,7 @@ rule train:
         "cape train --model {wildcards.model} --seed {wildcards.training_seed}"
         " --data {input.data:q} --out {params.out:q}"
         " --threads {threads} --checkpoint-every {resources.checkpoint_every}"
-        " --config-json {params.cfg:q} > {log:q} 2>&1"
+        " --spec {params.spec:q} > {log:q} 2>&1"
 
 
 checkpoint training_health:
@@ -47,7 +47,7 @@ checkpoint training_health:
     output:
         f"{TRAINING_FOLDER}/health.json",
     params:
-        cfg=lambda wildcards: health_config_json(wildcards.model),
+        spec=lambda wildcards: job_spec("training_health", specs.health(config, wildcards.model)),
         folder=lambda wildcards, input: os.path.dirname(input.weights),
     conda:
         CAPE_ENV
@@ -55,7 +55,7 @@ checkpoint training_health:
         paths.log("health", "{model}", "seed{training_seed}.log"),
     shell:
         "cape check-training --model {wildcards.model}={params.folder:q} --data {input.data:q}"
-        " --out {output:q} --config-json {params.cfg:q} > {log:q} 2>&1"
+        " --out {output:q} --spec {params.spec:q} > {log:q} 2>&1"
 
 
 rule draw:
@@ -92,7 +92,7 @@ rule freeze:
     output:
         f"{MODEL_FOLDER}/frozen_phi.json",
     params:
-        cfg=lambda wildcards: config_json("data"),
+        spec=lambda wildcards: job_spec("freeze", specs.sections(config, "data")),
         folder=lambda wildcards, input: os.path.dirname(input.weights),
     conda:
         CAPE_ENV
@@ -100,7 +100,7 @@ rule freeze:
         paths.log("freeze", paths.REP, "{model}.log"),
     shell:
         "cape freeze --model {wildcards.model}={params.folder:q} --data {input.data:q} --out {output:q}"
-        " --config-json {params.cfg:q} > {log:q} 2>&1"
+        " --spec {params.spec:q} > {log:q} 2>&1"
 
 
 rule export_network:
@@ -112,14 +112,14 @@ rule export_network:
     localrule: True
     params:
         folder=lambda wildcards, input: os.path.dirname(input.weights),
-        cfg=lambda wildcards: export_config_json(),
+        spec=lambda wildcards: job_spec("export_network", specs.export(config)),
     conda:
         CAPE_ENV
     log:
         paths.log("export", paths.REP, "{model}.log"),
     shell:
         "cape export-network --model {wildcards.model}={params.folder:q} --out {output:q}"
-        " --config-json {params.cfg:q} > {log:q} 2>&1"
+        " --spec {params.spec:q} > {log:q} 2>&1"
 
 
 rule openloop_table:
@@ -133,7 +133,7 @@ rule openloop_table:
         tex=f"{paths.REPLICATE_TABLES}/table04_openloop_rmse.tex",
     params:
         models=lambda wildcards: model_args(int(wildcards.replicate)),
-        cfg=lambda wildcards: config_json("data", "training"),
+        spec=lambda wildcards: job_spec("openloop_table", specs.sections(config, "data", "training")),
     conda:
         CAPE_ENV
     log:
@@ -142,7 +142,7 @@ rule openloop_table:
         paths.benchmark("tables", paths.REP, "table04_openloop_rmse.tsv")
     shell:
         "cape openloop {params.models} --train-data {input.train:q} --test-data {input.test:q}"
-        " --out {output.csv:q} --out {output.md:q} --out {output.tex:q} --config-json {params.cfg:q} > {log:q} 2>&1"
+        " --out {output.csv:q} --out {output.md:q} --out {output.tex:q} --spec {params.spec:q} > {log:q} 2>&1"
 
 
 rule complexity_table:
@@ -155,7 +155,7 @@ rule complexity_table:
         tex=f"{paths.REPLICATE_TABLES}/table01_model_complexity.tex",
     params:
         models=lambda wildcards: model_args(int(wildcards.replicate)),
-        cfg=lambda wildcards: config_json("training"),
+        spec=lambda wildcards: job_spec("complexity_table", specs.sections(config, "training")),
     conda:
         CAPE_ENV
     log:
@@ -164,7 +164,7 @@ rule complexity_table:
         paths.benchmark("tables", paths.REP, "table01_model_complexity.tsv")
     shell:
         "cape complexity {params.models} --data {input.test:q}"
-        " --out {output.csv:q} --out {output.md:q} --out {output.tex:q} --config-json {params.cfg:q} > {log:q} 2>&1"
+        " --out {output.csv:q} --out {output.md:q} --out {output.tex:q} --spec {params.spec:q} > {log:q} 2>&1"
 
 
 rule figure_models:
@@ -178,7 +178,7 @@ rule figure_models:
         curves_png=paths.figures("training_curves.png"),
     params:
         models=model_args(),
-        cfg=lambda wildcards: config_json("data", "models"),
+        spec=lambda wildcards: job_spec("figure_models", specs.sections(config, "data", "models")),
     conda:
         CAPE_ENV
     log:
@@ -187,4 +187,4 @@ rule figure_models:
         "cape plot-models {params.models} --data {input.test:q}"
         " --phi-out {output.phi_pdf:q} --phi-out {output.phi_png:q}"
         " --curves-out {output.curves_pdf:q} --curves-out {output.curves_png:q}"
-        " --config-json {params.cfg:q} > {log:q} 2>&1"
+        " --spec {params.spec:q} > {log:q} 2>&1"

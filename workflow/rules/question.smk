@@ -25,6 +25,7 @@ rule notebook_question:
         html=paths.scoped(paths.QUESTION, "notebooks", "question.html"),
     params:
         nb=lambda wildcards, input: papermill_args(
+            "notebook_question",
             looks_path=input.looks,
             figure_dir=paths.scoped(paths.QUESTION, "figures"),
             table_dir=paths.scoped(paths.QUESTION, "tables"),

@@ -9,7 +9,7 @@ rule raceline:
         pdf=paths.figures("raceline_{track}.pdf"),
         png=paths.figures("raceline_{track}.png"),
     params:
-        cfg=lambda wildcards: config_json("tracks", "reference"),
+        spec=lambda wildcards: job_spec("raceline", specs.sections(config, "tracks", "reference")),
         # checked against the line's ideal lap before any run starts (a limit no lap can meet)
         time_limit=config["rollout"]["time_limit"],
     conda:
@@ -19,4 +19,4 @@ rule raceline:
     shell:
         "cape raceline --track {wildcards.track} --out {output.line:q}"
         " --figure {output.pdf:q} --figure {output.png:q} --time-limit {params.time_limit}"
-        " --config-json {params.cfg:q} > {log:q} 2>&1"
+        " --spec {params.spec:q} > {log:q} 2>&1"

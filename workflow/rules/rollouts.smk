@@ -7,8 +7,8 @@ rule solver:
     output:
         paths.SOLVER,
     params:
-        cfg=lambda wildcards: rollout_config_json(
-            wildcards.controller, wildcards.internal, solver=True
+        spec=lambda wildcards: job_spec(
+            "solver", specs.rollout(config, wildcards.controller, wildcards.internal, solver=True)
         ),
         models=lambda wildcards: model_folder_args(wildcards, [wildcards.internal]),
     conda:
@@ -19,7 +19,7 @@ rule solver:
         paths.benchmark("solvers", paths.REP, "{controller}", "{internal}.tsv")
     shell:
         "cape build-solver --controller {wildcards.controller} --internal {wildcards.internal}"
-        " --raceline {input.raceline:q} --out {output:q} {params.models} --config-json {params.cfg:q} > {log:q} 2>&1"
+        " --raceline {input.raceline:q} --out {output:q} {params.models} --spec {params.spec:q} > {log:q} 2>&1"
 
 
 rule rollout:
@@ -30,8 +30,8 @@ rule rollout:
         timing=f"{RUN_FOLDER}/timing.json",
         series=f"{RUN_FOLDER}/timeseries.parquet",
     params:
-        cfg=lambda wildcards: rollout_config_json(
-            wildcards.controller, wildcards.plant, wildcards.internal
+        spec=lambda wildcards: job_spec(
+            "rollout", specs.rollout(config, wildcards.controller, wildcards.plant, wildcards.internal)
         ),
         out=lambda wildcards, output: os.path.dirname(output.metrics),
         models=lambda wildcards: model_folder_args(wildcards, rollout_models(wildcards)),
@@ -47,7 +47,7 @@ rule rollout:
         " --controller {wildcards.controller} --internal {wildcards.internal}"
         " --eta {wildcards.eta} --seed {wildcards.seed} --replicate {wildcards.replicate}"
         " --out {params.out:q} {params.models} {params.data}"
-        " --raceline {input.raceline:q} --config-json {params.cfg:q} > {log:q} 2>&1"
+        " --raceline {input.raceline:q} --spec {params.spec:q} > {log:q} 2>&1"
 
 
 rule rollouts:
@@ -68,7 +68,7 @@ rule figure_rollout:
         pdf=f"{paths.ROLLOUT_FIGURES}/{RUN_STEM}.pdf",
         png=f"{paths.ROLLOUT_FIGURES}/{RUN_STEM}.png",
     params:
-        cfg=lambda wildcards: config_json("tracks", "data", "reference"),
+        spec=lambda wildcards: job_spec("figure_rollout", specs.sections(config, "tracks", "data", "reference")),
         run=lambda wildcards, input: os.path.dirname(input.metrics),
     conda:
         CAPE_ENV
@@ -76,4 +76,4 @@ rule figure_rollout:
         paths.log("figures", "rollout", f"{RUN_STEM}.log"),
     shell:
         "cape plot-rollout --run {params.run:q} --raceline {input.raceline:q} --out {output.pdf:q} --out {output.png:q}"
-        " --config-json {params.cfg:q} > {log:q} 2>&1"
+        " --spec {params.spec:q} > {log:q} 2>&1"

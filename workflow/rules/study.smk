@@ -15,7 +15,7 @@ rule aggregate:
         runs=paths.STUDY_RUNS,
         summary=paths.STUDY_SUMMARY,
     params:
-        cfg=lambda wildcards: grid_config_json(),
+        spec=lambda wildcards: job_spec("aggregate", specs.grid(config)),
         replicates=lambda wildcards: " ".join(map(str, SCOPES[wildcards.scope])),
         models=paths.MODELS,
     conda:
@@ -26,7 +26,7 @@ rule aggregate:
         paths.scoped("{scope}", "benchmarks", "study", "aggregate.tsv")
     shell:
         "cape aggregate --out {output.runs:q} --summary {output.summary:q} --models-root {params.models:q}"
-        " --replicates {params.replicates} --config-json {params.cfg:q} > {log:q} 2>&1"
+        " --replicates {params.replicates} --spec {params.spec:q} > {log:q} 2>&1"
 
 
 rule notebook_setup:
@@ -41,7 +41,8 @@ rule notebook_setup:
         html=paths.notebooks("setup.html"),
     params:
         nb=lambda wildcards: papermill_args(
-            config_json=config_json("controllers", "disturbances", "models"),
+            "notebook_setup",
+            spec=notebook_spec("setup"),
             figure_dir=paths.FIGURES,
             table_dir=paths.TABLES,
         ),
@@ -73,8 +74,9 @@ rule notebook_closed_loop:
         study=studies_of_kind("closed_loop"),
     params:
         nb=lambda wildcards, input: papermill_args(
+            "notebook_closed_loop",
             study=wildcards.study,
-            config_json=config_json("tracks", "data", "reference", "controllers", "models", "study"),
+            spec=notebook_spec("closed_loop"),
             runs_path=input.runs,
             summary_path=input.summary,
             raceline=input.raceline,
@@ -108,8 +110,9 @@ rule notebook_bicycle:
         study=studies_of_kind("bicycle"),
     params:
         nb=lambda wildcards, input: papermill_args(
+            "notebook_bicycle",
             study=wildcards.study,
-            config_json=config_json("controllers", "models", "study"),
+            spec=notebook_spec("bicycle"),
             summary_path=input.summary,
             figure_dir=paths.figures(wildcards.study),
             table_dir=paths.tables(wildcards.study),
@@ -139,8 +142,9 @@ rule notebook_ablation:
         study=studies_of_kind("ablation"),
     params:
         nb=lambda wildcards, input: papermill_args(
+            "notebook_ablation",
             study=wildcards.study,
-            config_json=config_json("tracks", "data", "reference", "controllers", "models", "study"),
+            spec=notebook_spec("ablation"),
             runs_path=input.runs,
             raceline=input.raceline,
             series_paths=input.series,
@@ -168,8 +172,9 @@ rule notebook_failures:
         html=paths.notebooks("failures_{study}.html"),
     params:
         nb=lambda wildcards, input: papermill_args(
+            "notebook_failures",
             study=wildcards.study,
-            config_json=config_json("tracks", "data", "reference", "controllers", "models", "study"),
+            spec=notebook_spec("failures"),
             runs_path=input.runs,
             raceline=input.raceline,
             figure_dir=paths.figures(wildcards.study),
@@ -204,9 +209,8 @@ rule notebook_scorecard:
         html=paths.scoped("{scope}", "notebooks", "scorecard.html"),
     params:
         nb=lambda wildcards, input: papermill_args(
-            config_json=config_json(
-                "tracks", "data", "reference", "controllers", "models", "study", "training", "scorecard"
-            ),
+            "notebook_scorecard",
+            spec=notebook_spec("scorecard"),
             runs_path=input.runs,
             summary_path=input.summary,
             raceline=input.raceline,

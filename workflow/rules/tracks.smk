@@ -5,7 +5,7 @@ rule tracks:
     output:
         track_files(),
     params:
-        cfg=lambda wildcards: config_json("tracks"),
+        spec=lambda wildcards: job_spec("tracks", specs.sections(config, "tracks")),
     conda:
         CAPE_ENV
     log:
@@ -13,4 +13,4 @@ rule tracks:
     localrule: True
     shell:
         # tee: a failure's message (what to do) shows on the console, not only in the log
-        "cape tracks --config-json {params.cfg:q} 2>&1 | tee {log:q}"
+        "cape tracks --spec {params.spec:q} 2>&1 | tee {log:q}"

@@ -39,7 +39,13 @@ def _add_config_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--config-json",
         metavar="JSON",
-        help="config sections as a JSON object (how the workflow passes them); overrides --config",
+        help="config sections as a JSON object; overrides --config",
+    )
+    parser.add_argument(
+        "--spec",
+        metavar="FILE",
+        help="the job's specification: a JSON file of the config sections it reads (how the "
+        "workflow passes them, under results/specs/); overrides --config and --config-json",
     )
 
 
@@ -111,7 +117,7 @@ def _entry(name: str, entries: Any, option: str, field: str) -> Any:
 def _config(args: argparse.Namespace) -> dict[str, Any]:
     from cape.config import config_from_args
 
-    return config_from_args(args.config, args.config_json)
+    return config_from_args(args.config, args.config_json, args.spec)
 
 
 def _read_dataset(path: str) -> dict[str, Any]:

@@ -127,7 +127,7 @@ def cmd_rollout(args: argparse.Namespace) -> None:
         args.internal,
         _model_folders(args),
         args.raceline,
-        validate=args.config_json is None,
+        validate=args.config_json is None and args.spec is None,
         envelope_data=args.training_data,
         started=STARTED,
         imported=imported,

@@ -37,6 +37,9 @@ BESIDE_A_MODEL = ("health.json", "frozen_phi.json", "network.npz")
 """What other rules write into a model's folder: its health, frozen Φ and exported network."""
 CHECKPOINT_GLOB = "checkpoint-*.pt"
 """A training's resumable checkpoints, in its folder while it runs."""
+SPECS = _under("specs")
+SPEC = _under("specs", "{job}", "{digest}.json")
+"""A job's specification: the config sections it reads, as JSON named by their digest."""
 SOLVERS = _under("solvers")
 SOLVER = _under("solvers", REP, "{controller}", "{internal}.json")
 REPLICATE_TABLES = _under("tables", REP)

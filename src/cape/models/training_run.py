@@ -16,6 +16,7 @@ from typing import Any
 
 import torch
 
+from cape.config import PRESENTATION_KEYS
 from cape.models.base import LearnedModel
 from cape.models.kernels import in_effect
 from cape.models.trained import FORMAT_VERSION
@@ -27,9 +28,6 @@ from cape.models.training import (
     train_model,
     training_fingerprint,
 )
-
-PRESENTATION_KEYS = ("label", "color")
-"""A model entry's keys that change no training (they only draw it)."""
 
 
 @dataclass

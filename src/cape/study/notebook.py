@@ -37,9 +37,9 @@ def enter_repository() -> None:
         os.chdir(Path.cwd().parent)
 
 
-def load_config(config_json: str = "") -> dict[str, Any]:
-    """The sections papermill passed as JSON, else config/config.yaml."""
-    return config_from_args(None, config_json or None)
+def load_config(spec: str = "") -> dict[str, Any]:
+    """The sections of the job specification file papermill passed, else config/config.yaml."""
+    return config_from_args(None, None, spec or None)
 
 
 def controller_labels(config: Mapping[str, Any]) -> dict[str, str]:

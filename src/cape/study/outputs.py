@@ -30,7 +30,12 @@ class NotebookOutputs:
 
     figures: Mapping[str, str] = field(default_factory=dict)
     tables: tuple[str, ...] = ()
+    reads: tuple[str, ...] = ()
+    """The config sections it reads (its job specification, ``cape.workflow.specs``)."""
 
+
+READS_RUNS = ("tracks", "data", "reference", "controllers", "models", "study")
+"""The config sections of a notebook that draws runs on the track."""
 
 STUDY_NOTEBOOKS: dict[str, NotebookOutputs] = {
     "closed_loop": NotebookOutputs(
@@ -46,6 +51,7 @@ STUDY_NOTEBOOKS: dict[str, NotebookOutputs] = {
             ),
         },
         tables=("table06_metrics_eta1", "table07_success"),
+        reads=READS_RUNS,
     ),
     "bicycle": NotebookOutputs(
         figures={
@@ -55,15 +61,19 @@ STUDY_NOTEBOOKS: dict[str, NotebookOutputs] = {
             "fig06_bicycle_lap_time": "failure-penalised lap time, bicycle variants vs learned EPM",
         },
         tables=("table05_best_bicycle_controller",),
+        reads=("controllers", "models", "study"),
     ),
     "ablation": NotebookOutputs(
         figures={
             "fig04_ablation_trajectories": (
                 "trajectories at η = 0 (first seed), internal model vs plant"
             )
-        }
+        },
+        reads=READS_RUNS,
     ),
-    "failures": NotebookOutputs(figures={"fig12_failure_locations": "failure locations"}),
+    "failures": NotebookOutputs(
+        figures={"fig12_failure_locations": "failure locations"}, reads=READS_RUNS
+    ),
 }
 """Per-study notebooks: the one of the study's kind, and ``failures`` for every study."""
 
@@ -71,6 +81,7 @@ WHOLE_STUDY_NOTEBOOKS: dict[str, NotebookOutputs] = {
     "setup": NotebookOutputs(
         figures={"fig01_block_diagram": "the closed loop of every run"},
         tables=("table02_controller_parameters", "table03_uncertainty_activation"),
+        reads=("controllers", "disturbances", "models"),
     ),
     "scorecard": NotebookOutputs(
         figures={
@@ -91,6 +102,7 @@ WHOLE_STUDY_NOTEBOOKS: dict[str, NotebookOutputs] = {
             "table04_reliability",
             "table01_replicates",
         ),
+        reads=(*READS_RUNS, "training", "scorecard"),
     ),
     "question": NotebookOutputs(
         figures={

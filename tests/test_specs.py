@@ -1,0 +1,76 @@
+"""Each job's specification (cape.workflow.specs): exactly the settings it reads, in a small file
+named by their digest, read by the command's --spec."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from cape.config import config_from_args, load_config
+from cape.errors import CapeError
+from cape.workflow import specs
+
+
+@pytest.fixture(scope="module")
+def config() -> dict:
+    return load_config("config/config.yaml")
+
+
+def test_a_spec_file_is_named_by_its_content_and_written_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    first = specs.spec_file("train", '{"a": 1}')
+    assert Path(first).parent == Path("results/specs/train")
+    assert Path(first).read_text() == '{"a": 1}'
+    written = Path(first).stat().st_mtime_ns
+    assert specs.spec_file("train", '{"a": 1}') == first  # the same text: the same file ...
+    assert Path(first).stat().st_mtime_ns == written  # ... not written again
+    assert specs.spec_file("train", '{"a": 2}') != first  # another setting: another file
+
+
+def test_a_command_reads_its_spec_as_it_read_the_json(tmp_path: Path, config: dict) -> None:
+    text = specs.sections(config, "tracks", "data")
+    path = tmp_path / "spec.json"
+    path.write_text(text)
+    assert config_from_args(None, None, str(path)) == config_from_args(None, text)
+    with pytest.raises(CapeError, match=r"--spec .*missing\.json: cannot read"):
+        config_from_args(None, None, str(tmp_path / "missing.json"))
+    path.write_text("[1, 2]")
+    with pytest.raises(CapeError, match=r"--spec .*spec\.json must be a JSON object"):
+        config_from_args(None, None, str(path))
+
+
+def test_sections_leave_out_the_grids_keys(config: dict) -> None:
+    chosen = json.loads(specs.sections(config, "training", "data"))
+    assert sorted(chosen) == ["data", "training"]
+    assert not {"replicates", "max_trainings"} & set(chosen["training"])
+
+
+def test_a_training_reads_its_models_entry_and_seed_not_its_label(config: dict) -> None:
+    spec = json.loads(specs.training(config, "epm", 7))
+    assert list(spec["models"]) == ["epm"]
+    assert "label" not in spec["models"]["epm"] and "color" not in spec["models"]["epm"]
+    assert spec["training"]["seed"] == 7
+    epm = {**config["models"]["epm"], "label": "mine"}
+    relabelled = {**config, "models": {**config["models"], "epm": epm}}
+    assert specs.training(relabelled, "epm", 7) == specs.training(config, "epm", 7)
+    assert specs.training(config, "epm", 8) != specs.training(config, "epm", 7)
+
+
+def test_a_run_reads_only_the_models_its_plant_and_internal_model_read(config: dict) -> None:
+    spec = json.loads(specs.rollout(config, "nmpc", "epm", "epm"))
+    assert list(spec["controllers"]) == ["nmpc"]
+    assert sorted(spec["models"]) == ["epm"]
+    truth = json.loads(specs.rollout(config, "nmpc", "truth", "epm"))
+    assert sorted(truth["models"]) == ["ddm", "epm"]  # the true model has DDM's structure
+    solver = json.loads(specs.rollout(config, "nmpc", "epm", solver=True))
+    assert not set(specs.RUN_ONLY_KEYS) & set(solver["rollout"])
+
+
+def test_a_notebooks_parameters_are_strings_as_papermill_r_passes_them() -> None:
+    text = specs.notebook_parameters({"study": "learned", "replicates": [0, 1], "eta": 1.0})
+    assert json.loads(text) == {"study": "learned", "replicates": "0,1", "eta": "1.0"}
+    assert list(json.loads(text)) == ["study", "replicates", "eta"]
