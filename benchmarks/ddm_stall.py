@@ -66,7 +66,7 @@ def _blocks(model: torch.nn.Module) -> list[tuple[str, list[torch.nn.Parameter]]
 
 
 def diagnose(folder: Path, data: dict[str, np.ndarray], config: dict) -> None:
-    if not (folder / "model.pt").is_file():
+    if not (folder / paths.WEIGHTS).is_file():
         raise CapeError(f"{folder}: no model.pt, so not a training folder; give one of "
                         f"{paths.TRAINING.format(model='<model>', training_seed='<s>')} "
                         "(`snakemake --cores 2` trains them)")  # fmt: skip
@@ -81,7 +81,7 @@ def diagnose(folder: Path, data: dict[str, np.ndarray], config: dict) -> None:
     model.zero_grad()
     loss = torch.mean((model(x) - y) ** 2)
     loss.backward()
-    health = folder / "health.json"
+    health = folder / paths.HEALTH
     fix = f"delete it and rebuild it with `snakemake --cores 2 {health}`"
     said = read_json(health, "a training's health record", fix) if health.is_file() else {}
     outcome = (

@@ -58,7 +58,7 @@ def draw_trainings(model: str, replicate: int, lacking: list[str]) -> list[int] 
     did not (its ``meta.json``'s ``draw.trainings``), or None (said in ``lacking``)."""
 
     def consulted(r: int) -> set[int] | None:
-        path = Path(paths.model_dir(model, r), "meta.json")
+        path = Path(paths.model_dir(model, r), paths.META)
         if not path.is_file():
             lacking.append(f"{path} (draw {r} of {model}: `snakemake --cores 2 {path}`)")
             return None
@@ -128,11 +128,11 @@ def draw_runs(
             absent.append(str(folder))
             continue
         timing = read_timing(folder)
-        metrics = read_metrics(folder / "metrics.json")
+        metrics = read_metrics(folder / paths.METRICS)
         job = timing.get("job_s")
         if not isinstance(job, dict):
             raise CapeError(
-                f"{folder / 'timing.json'}: no `job_s` (the job's phases: a run of "
+                f"{folder / paths.TIMING}: no `job_s` (the job's phases: a run of "
                 f"an older version); delete {folder} and rerun snakemake"
             )
         rescues = timing.get("rescues") or {}

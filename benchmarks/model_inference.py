@@ -90,7 +90,7 @@ def main() -> None:
         if args.models and name not in args.models:
             continue
         folder = Path(layout.model_dir(name, 0))
-        if (folder / "model.pt").is_file():
+        if (folder / layout.WEIGHTS).is_file():
             model, source = load_model(folder, name), "trained"
         else:
             model = build_model(name, spec, config["data"]["ts"], seed=0).eval()

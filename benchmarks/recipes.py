@@ -60,7 +60,7 @@ def summarise(model: str, seeds: int, first: int, test: dict[str, np.ndarray]) -
     outcomes, val, mobil, cpu, missing = [], [], [], [], []
     for seed in range(first, first + seeds):
         folder = Path(paths.training_dir(model, seed))
-        health = folder / "health.json"
+        health = folder / paths.HEALTH
         if not health.is_file():
             missing.append(f"seed {seed}")
             continue

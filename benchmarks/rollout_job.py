@@ -98,7 +98,7 @@ def main() -> None:
                         "installed in (`pip install -e .`)")  # fmt: skip
     require_file(paths.raceline(config["reference"]["track"]))
     if any(c != "pid" for c in args.controllers):
-        require_file(Path(paths.model_dir(args.internal, args.replicate), "network.npz"))
+        require_file(Path(paths.model_dir(args.internal, args.replicate), paths.NETWORK))
     floor = [sys.executable, "-c", "import numpy, casadi"]
     rows: dict[str, list[dict[str, float]]] = {name: [] for name in ["floor", *args.controllers]}
     with tempfile.TemporaryDirectory() as tmp:
@@ -111,7 +111,7 @@ def main() -> None:
                 wall = timed(command)
                 job = read_timing(out).get("job_s")
                 if not isinstance(job, dict):
-                    raise CapeError(f"{out / 'timing.json'}: no `job_s` (the job's phases); "
+                    raise CapeError(f"{out / paths.TIMING}: no `job_s` (the job's phases); "
                                     "this `cape` is older than the benchmark")  # fmt: skip
                 steps = max(int(job["steps"]), 1)
                 inside = sum(job[k] for k in ("startup", "config", "build", "lap", "write"))

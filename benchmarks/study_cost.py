@@ -40,7 +40,7 @@ def training(lacking: list[str]) -> dict[str, float]:
     out = {}
     for weights in sorted(Path().glob(str(Path(paths.training_dir("*", 0)).with_name("seed*")))):
         model, seed = weights.parent.name, weights.name
-        if not (weights / "model.pt").is_file():
+        if not (weights / paths.WEIGHTS).is_file():
             continue
         tsv = Path(paths.benchmark("train", model, f"{seed}.tsv"))
         if tsv.is_file():
@@ -64,7 +64,7 @@ def rollouts(config: dict[str, Any], lacking: list[str]) -> list[dict]:
         job = read_timing(folder).get("job_s")
         if not isinstance(job, dict):
             raise CapeError(
-                f"{folder / 'timing.json'}: no `job_s` (the job's phases: a run of "
+                f"{folder / paths.TIMING}: no `job_s` (the job's phases: a run of "
                 f"an older version); delete {folder} and rerun snakemake"
             )
         rows.append({"study": run_id.study, "controller": run_id.controller,

@@ -127,17 +127,17 @@ def draw_inputs(wildcards):
     choice = draw_choice(wildcards)
     chosen = paths.training_dir(model, choice.consulted[choice.index].seed)
     return {
-        "health": [f"{paths.training_dir(model, o.seed)}/health.json" for o in choice.consulted],
-        "weights": f"{chosen}/model.pt",
-        "meta": f"{chosen}/meta.json",
-        "losses": f"{chosen}/loss.csv",
+        "health": [f"{paths.training_dir(model, o.seed)}/{paths.HEALTH}" for o in choice.consulted],
+        "weights": f"{chosen}/{paths.WEIGHTS}",
+        "meta": f"{chosen}/{paths.META}",
+        "losses": f"{chosen}/{paths.LOSSES}",
     }
 
 
 def trained_models(replicate=0):
     """Weights, metadata and loss curve of every configured model's replicate."""
     return [
-        f"{paths.model_dir(m, replicate)}/{f}" for m in MODELS for f in ("model.pt", "meta.json", "loss.csv")
+        f"{paths.model_dir(m, replicate)}/{f}" for m in MODELS for f in paths.MODEL_FILES
     ]
 
 
@@ -178,11 +178,11 @@ def model_inputs(role, name, replicate):
     if plant.is_truth:
         return {}
     folder = paths.model_dir(plant.model, replicate)
-    inputs = {f"{role}_meta": f"{folder}/meta.json"}
+    inputs = {f"{role}_meta": f"{folder}/{paths.META}"}
     if plant.kind == "learned":
-        inputs[f"{role}_network"] = f"{folder}/network.npz"
+        inputs[f"{role}_network"] = f"{folder}/{paths.NETWORK}"
     else:
-        inputs[f"{role}_frozen"] = f"{folder}/frozen_phi.json"
+        inputs[f"{role}_frozen"] = f"{folder}/{paths.FROZEN_PHI}"
     return inputs
 
 
@@ -236,7 +236,7 @@ RUN_STEM = RunId.wildcards().stem()
 def rollout_targets(replicates=None):
     """metrics.json of every run the grid computes (each once); ``replicates``: only the runs
     of these training replicates (the default target's are replicate 0's)."""
-    return [f"{run.folder()}/metrics.json" for run in computed_runs(replicates)]
+    return [f"{run.folder()}/{paths.METRICS}" for run in computed_runs(replicates)]
 
 
 # --- the study's notebooks -------------------------------------------------------------------
@@ -305,7 +305,7 @@ def example_series(study):
     """The time series the η = 0 figures draw: every run of ``study`` at η = 0, first seed,
     replicate 0 (the study's figures are replicate 0's)."""
     return [
-        f"{computed.folder()}/timeseries.parquet"
+        f"{computed.folder()}/{paths.SERIES}"
         for run, computed in GRID.items()
         if run.study == study and float(run.eta) == 0 and run.seed == 0 and run.replicate == 0
     ]

@@ -8,9 +8,9 @@ rule train:
     input:
         data=paths.dataset(config["data"]["train_track"]),
     output:
-        weights=f"{TRAINING_FOLDER}/model.pt",
-        meta=f"{TRAINING_FOLDER}/meta.json",
-        losses=f"{TRAINING_FOLDER}/loss.csv",
+        weights=f"{TRAINING_FOLDER}/{paths.WEIGHTS}",
+        meta=f"{TRAINING_FOLDER}/{paths.META}",
+        losses=f"{TRAINING_FOLDER}/{paths.LOSSES}",
     params:
         spec=lambda wildcards: job_spec("train", specs.training(config, wildcards.model, int(wildcards.training_seed))),
         out=lambda wildcards, output: os.path.dirname(output.weights),
@@ -40,12 +40,12 @@ checkpoint training_health:
     """Did a training work? The checks on the training alone (SPEC §4.2's bar, the stalled
     loss): a checkpoint, since which trainings a model needs depends on them."""
     input:
-        weights=f"{TRAINING_FOLDER}/model.pt",
-        meta=f"{TRAINING_FOLDER}/meta.json",
-        losses=f"{TRAINING_FOLDER}/loss.csv",
+        weights=f"{TRAINING_FOLDER}/{paths.WEIGHTS}",
+        meta=f"{TRAINING_FOLDER}/{paths.META}",
+        losses=f"{TRAINING_FOLDER}/{paths.LOSSES}",
         data=paths.dataset(config["data"]["train_track"]),
     output:
-        f"{TRAINING_FOLDER}/health.json",
+        f"{TRAINING_FOLDER}/{paths.HEALTH}",
     params:
         spec=lambda wildcards: job_spec("training_health", specs.health(config, wildcards.model)),
         folder=lambda wildcards, input: os.path.dirname(input.weights),
@@ -64,9 +64,9 @@ rule draw:
     input:
         unpack(draw_inputs),
     output:
-        weights=f"{MODEL_FOLDER}/model.pt",
-        meta=f"{MODEL_FOLDER}/meta.json",
-        losses=f"{MODEL_FOLDER}/loss.csv",
+        weights=f"{MODEL_FOLDER}/{paths.WEIGHTS}",
+        meta=f"{MODEL_FOLDER}/{paths.META}",
+        losses=f"{MODEL_FOLDER}/{paths.LOSSES}",
     localrule: True
     params:
         # (no `health` while a checkpoint is pending: the job is planned again once it is done)
@@ -86,11 +86,11 @@ rule draw:
 
 rule freeze:
     input:
-        weights=f"{MODEL_FOLDER}/model.pt",
-        meta=f"{MODEL_FOLDER}/meta.json",
+        weights=f"{MODEL_FOLDER}/{paths.WEIGHTS}",
+        meta=f"{MODEL_FOLDER}/{paths.META}",
         data=paths.dataset(config["data"]["train_track"]),
     output:
-        f"{MODEL_FOLDER}/frozen_phi.json",
+        f"{MODEL_FOLDER}/{paths.FROZEN_PHI}",
     params:
         spec=lambda wildcards: job_spec("freeze", specs.sections(config, "data")),
         folder=lambda wildcards, input: os.path.dirname(input.weights),
@@ -105,10 +105,10 @@ rule freeze:
 
 rule export_network:
     input:
-        weights=f"{MODEL_FOLDER}/model.pt",
-        meta=f"{MODEL_FOLDER}/meta.json",
+        weights=f"{MODEL_FOLDER}/{paths.WEIGHTS}",
+        meta=f"{MODEL_FOLDER}/{paths.META}",
     output:
-        f"{MODEL_FOLDER}/network.npz",
+        f"{MODEL_FOLDER}/{paths.NETWORK}",
     localrule: True
     params:
         folder=lambda wildcards, input: os.path.dirname(input.weights),

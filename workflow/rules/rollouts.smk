@@ -26,9 +26,9 @@ rule rollout:
     input:
         unpack(rollout_inputs),
     output:
-        metrics=f"{RUN_FOLDER}/metrics.json",
-        timing=f"{RUN_FOLDER}/timing.json",
-        series=f"{RUN_FOLDER}/timeseries.parquet",
+        metrics=f"{RUN_FOLDER}/{paths.METRICS}",
+        timing=f"{RUN_FOLDER}/{paths.TIMING}",
+        series=f"{RUN_FOLDER}/{paths.SERIES}",
     params:
         spec=lambda wildcards: job_spec(
             "rollout", specs.rollout(config, wildcards.controller, wildcards.plant, wildcards.internal)
@@ -61,8 +61,8 @@ rule rollouts:
 rule figure_rollout:
     """The path and signals of one run, e.g. results/figures/rollout/learned_rep0_epm_epm_pid_eta0_seed0.pdf"""
     input:
-        metrics=f"{RUN_FOLDER}/metrics.json",
-        series=f"{RUN_FOLDER}/timeseries.parquet",
+        metrics=f"{RUN_FOLDER}/{paths.METRICS}",
+        series=f"{RUN_FOLDER}/{paths.SERIES}",
         raceline=raceline_path(),
     output:
         pdf=f"{paths.ROLLOUT_FIGURES}/{RUN_STEM}.pdf",

@@ -253,7 +253,7 @@ if workflow.is_main_process:
     for _scope, _replicates in SCOPES.items():
         _missing = missing_runs(
             paths.study_runs(_scope),
-            (f"{run.folder()}/metrics.json" for run in computed_runs(set(_replicates))),
+            (f"{run.folder()}/{paths.METRICS}" for run in computed_runs(set(_replicates))),
         )
         if _missing:
             _target = "all" if _scope == paths.DEFAULT_SCOPE else "replicates"

@@ -119,7 +119,7 @@ def cmd_train(args: argparse.Namespace) -> None:
     result = run.result
     if result.resumed_from:
         print(f"resumed from {run.checkpoint} after epoch {result.resumed_from}")
-    save_model(run.model, out, run.meta, {"loss.csv": run.losses_csv.encode()})
+    save_model(run.model, out, run.meta, {paths.LOSSES: run.losses_csv.encode()})
     run.checkpoint.unlink(missing_ok=True)  # done: the model replaces it
     print(
         f"{args.model}: best validation MSE {result.best_val_loss:.4e} "
@@ -176,12 +176,12 @@ def cmd_check_training(args: argparse.Namespace) -> None:
         _read_dataset(args.data), model.history, float(split["train_fraction"]), int(split["seed"])
     )
     losses = read_csv(
-        folder / "loss.csv",
+        folder / paths.LOSSES,
         "train the model first (snakemake does)",
         "not a loss curve ({reason}); delete the model folder and train again",
     )
     if "train_loss" not in losses:
-        raise CapeError(f"{folder / 'loss.csv'}: has no train_loss column; train the model again")
+        raise CapeError(f"{folder / paths.LOSSES}: has no train_loss column; train the model again")
     outcome = training_outcome(
         name,
         int(meta["seed"]),
@@ -236,12 +236,12 @@ def cmd_draw(args: argparse.Namespace) -> None:
                 f"draw {args.replicate} of {args.model} needs training {k}'s health, but only "
                 f"{len(trainings)} --training folders were given"
             )
-        return read_outcome(trainings[k] / "health.json")
+        return read_outcome(trainings[k] / paths.HEALTH)
 
     choice = choose_training(args.replicate, args.max_trainings, outcome)
     source = trainings[choice.index]
     meta = read_meta(source)
-    weights = (source / "model.pt").read_bytes()
+    weights = (source / paths.WEIGHTS).read_bytes()
     digest = hashlib.sha256(weights).hexdigest()
     health = choice.consulted[choice.index]
     if meta.get("name") != args.model or digest != meta.get("weights_sha256"):
@@ -250,8 +250,8 @@ def cmd_draw(args: argparse.Namespace) -> None:
         )
     if health.weights_sha256 != digest:
         raise CapeError(
-            f"{source}/health.json: is about other weights than {source}/model.pt; delete it "
-            "and rerun snakemake"
+            f"{source}/{paths.HEALTH}: is about other weights than {source}/{paths.WEIGHTS}; "
+            "delete it and rerun snakemake"
         )
     meta["replicate"] = args.replicate
     meta["draw"] = {
@@ -263,9 +263,9 @@ def cmd_draw(args: argparse.Namespace) -> None:
         "trainings": [o.to_dict() for o in choice.consulted],
     }
     write_files({
-        out / "model.pt": weights,
-        out / "loss.csv": (source / "loss.csv").read_bytes(),
-        out / "meta.json": (json.dumps(meta, indent=2, sort_keys=True) + "\n").encode(),
+        out / paths.WEIGHTS: weights,
+        out / paths.LOSSES: (source / paths.LOSSES).read_bytes(),
+        out / paths.META: (json.dumps(meta, indent=2, sort_keys=True) + "\n").encode(),
     })  # fmt: skip
     said = "trained" if choice.trained else "failed (the cap was reached)"
     print(
@@ -341,7 +341,7 @@ def cmd_export_network(args: argparse.Namespace) -> None:
     from cape.ownership import Output
 
     meta = read_meta(folder)
-    target = Path(args.out) if args.out else Path(folder) / "network.npz"
+    target = Path(args.out) if args.out else Path(folder) / paths.NETWORK
     identity = _model_identity(name, model_replicate(meta))
     _claim(args, Output(target, "network", identity, (".npz",)))
     out = export_network(folder, target, expected_name=name)

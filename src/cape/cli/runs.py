@@ -23,6 +23,7 @@ from cape.cli.common import (
     _model_folders,
     command,
 )
+from cape.layout import paths
 from cape.layout.names import TRUTH
 
 PLANT_KINDS = "dpm|ddm|epm (learned), dpm-fixed|ddm-fixed|epm-fixed, or truth"
@@ -170,7 +171,7 @@ def cmd_plot_rollout(args: argparse.Namespace) -> None:
     config = _config(args)
     _claim(args, *_files(args.out, "figure of a run", FIGURE_SUFFIXES))
     run = Path(args.run)
-    metrics = read_metrics(run / "metrics.json")
+    metrics = read_metrics(run / paths.METRICS)
     series = read_series(run)
     line, track = load_reference(config, args.raceline)
     outcome = (

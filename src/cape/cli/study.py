@@ -62,7 +62,7 @@ def cmd_aggregate(args: argparse.Namespace) -> None:
     else:  # every run of the config's grid, read where it was computed
         grid = study_grid(config)
         read = args.replicates
-        pairs = [(run.study, computed.folder(args.root) / "metrics.json", computed, run.replicate)
+        pairs = [(run.study, computed.folder(args.root) / paths.METRICS, computed, run.replicate)
                  for run, computed in grid.items()
                  if read is None or run.replicate in read]  # fmt: skip
     runs = collect_runs(pairs, config["study"]["studies"], args.models_root)

@@ -48,7 +48,7 @@ def run_models(
                 f"--replicate {replicate}: the {model} model in {folder} is replicate {trained}'s, "
                 "so the run "
                 f"would carry its numbers under replicate {replicate}; pass --model "
-                f"{model}={draw} (made by `snakemake --cores 2 {draw}/network.npz`, with "
+                f"{model}={draw} (made by `snakemake --cores 2 {draw}/{paths.NETWORK}`, with "
                 f"training.replicates above {replicate})"
             )
         used[role] = {

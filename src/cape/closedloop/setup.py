@@ -79,7 +79,7 @@ class ModelFolders:
 
 def frozen_phi(models: Path | ModelFolders, model_name: str) -> dict[str, float]:
     """The frozen Φ of a trained model (SPEC §4.5), or an error saying how to build it."""
-    path = ModelFolders.of(models)(model_name) / "frozen_phi.json"
+    path = ModelFolders.of(models)(model_name) / paths.FROZEN_PHI
     fix = f"delete it and rebuild it with `snakemake --cores 1 {path}`"
     if not path.is_file():
         raise CapeError(f"{path}: missing; build it with `snakemake --cores 1 {path}`")

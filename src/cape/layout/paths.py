@@ -31,9 +31,22 @@ health.json."""
 MODELS = _under("models")
 MODEL = _under("models", REP, "{model}")
 """A model's draw r: the training chosen for it, its frozen Φ and exported network."""
-MODEL_FILES = ("model.pt", "meta.json", "loss.csv")
+# --- the file names inside a folder, spelled only here ---------------------------------------
+WEIGHTS = "model.pt"
+META = "meta.json"
+LOSSES = "loss.csv"
+HEALTH = "health.json"
+FROZEN_PHI = "frozen_phi.json"
+NETWORK = "network.npz"
+METRICS = "metrics.json"
+TIMING = "timing.json"
+SERIES = "timeseries.parquet"
+RUNS_TABLE = "runs.parquet"
+SUMMARY_TABLE = "summary.parquet"
+
+MODEL_FILES = (WEIGHTS, META, LOSSES)
 """What a training writes into its folder, and a draw copies into its own."""
-BESIDE_A_MODEL = ("health.json", "frozen_phi.json", "network.npz")
+BESIDE_A_MODEL = (HEALTH, FROZEN_PHI, NETWORK)
 """What other rules write into a model's folder: its health, frozen Φ and exported network."""
 CHECKPOINT_GLOB = "checkpoint-*.pt"
 """A training's resumable checkpoints, in its folder while it runs."""
@@ -58,8 +71,8 @@ DEFAULT_SCOPE = RESULTS
 """The default target's summaries (replicate 0)."""
 REPLICATES_SCOPE = _under("replicates")
 """The ``replicates`` target's summaries (every draw)."""
-STUDY_RUNS = "{scope}/study/runs.parquet"
-STUDY_SUMMARY = "{scope}/study/summary.parquet"
+STUDY_RUNS = f"{{scope}}/study/{RUNS_TABLE}"
+STUDY_SUMMARY = f"{{scope}}/study/{SUMMARY_TABLE}"
 GLANCE = "{scope}/RESULTS.md"
 QUESTION = _under("question")
 """The ground-truth question in stages (`cape question`): its stage plan, looks and report."""

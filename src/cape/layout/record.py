@@ -33,6 +33,7 @@ from cape import schemas
 from cape.errors import CapeError
 from cape.integrity import check_record, sealed_record
 from cape.io import write_bytes
+from cape.layout import paths
 from cape.layout.runs import RunId
 from cape.parquet import parquet_bytes
 
@@ -47,9 +48,9 @@ def write_run_files(
     records. The series holds the per-step solve times, wall-clock numbers, so its digest
     goes with the timing, and ``metrics.json`` stays byte-identical across reruns."""
     data = parquet_bytes(series)  # cape.parquet: no pyarrow to import in every rollout job
-    write_bytes(folder / "timeseries.parquet", data)
+    write_bytes(folder / paths.SERIES, data)
     text = json.dumps(sealed_record(metrics), indent=2, sort_keys=True) + "\n"
-    write_bytes(folder / "metrics.json", text.encode())
+    write_bytes(folder / paths.METRICS, text.encode())
     return hashlib.sha256(data).hexdigest()
 
 
@@ -57,7 +58,7 @@ def write_timing(folder: Path, timing: Mapping[str, Any], series_sha256: str) ->
     """``timing.json`` (sealed), with the digest of the run's series."""
     record = sealed_record({**timing, SERIES_KEY: series_sha256})
     write_bytes(
-        folder / "timing.json", (json.dumps(record, indent=2, sort_keys=True) + "\n").encode()
+        folder / paths.TIMING, (json.dumps(record, indent=2, sort_keys=True) + "\n").encode()
     )
 
 
@@ -128,7 +129,7 @@ def read_metrics(path: Path, expected: RunId | None = None) -> dict[str, Any]:
 def read_timing(folder: Path) -> dict[str, Any]:
     """A run's ``timing.json``, checked against the checksum it carries: its solve times (None
     where the controller solves nothing) and the digest of its series."""
-    path = folder / "timing.json"
+    path = folder / paths.TIMING
     fix = _fix(folder)
     timing = _read_json(path, f"missing (the run's files are incomplete); {fix}", fix)
     if not isinstance(timing, dict) or not isinstance(timing.get(SERIES_KEY), str):
@@ -153,7 +154,7 @@ def verify_series(folder: Path, timing: Mapping[str, Any]) -> bytes:
     """The bytes of a run's ``timeseries.parquet``, refused unless they are the series its
     ``timing.json`` recorded (the aggregation checks every run, so that a damaged run stops
     it, not a notebook)."""
-    path, fix = folder / "timeseries.parquet", _fix(folder)
+    path, fix = folder / paths.SERIES, _fix(folder)
     try:
         data = path.read_bytes()
     except FileNotFoundError:

@@ -16,7 +16,7 @@ from cape.layout import paths
 from cape.layout.names import TRUTH, replicate_name
 
 RUNS_ROOT = paths.RUNS
-RUN_FILES = ("metrics.json", "timing.json", "timeseries.parquet")
+RUN_FILES = (paths.METRICS, paths.TIMING, paths.SERIES)
 """A run folder's files: written together by ``cape rollout``, the only files it replaces."""
 
 

@@ -20,6 +20,7 @@ import torch
 
 from cape.errors import CapeError
 from cape.io import write_files
+from cape.layout import paths
 from cape.models.base import LearnedModel
 from cape.models.network import save_network
 from cape.models.trained import FORMAT_VERSION, load_physics, read_meta
@@ -48,8 +49,8 @@ def save_model(
         "param_names": list(model.param_names),
         **meta,
     }
-    files = {folder / "model.pt": weights}
-    files[folder / "meta.json"] = (json.dumps(full, indent=2, sort_keys=True) + "\n").encode()
+    files = {folder / paths.WEIGHTS: weights}
+    files[folder / paths.META] = (json.dumps(full, indent=2, sort_keys=True) + "\n").encode()
     files.update({folder / name: data for name, data in (extra or {}).items()})
     write_files(files)
 
@@ -63,7 +64,7 @@ def load_model(folder: str | Path, expected_name: str | None = None) -> LearnedM
     folder = Path(folder)
     model = LearnedModel(load_physics(folder, expected_name))
     name = model.name
-    weights = folder / "model.pt"
+    weights = folder / paths.WEIGHTS
     recorded = read_meta(folder).get("weights_sha256")
     if weights.is_file() and recorded != hashlib.sha256(weights.read_bytes()).hexdigest():
         why = (
@@ -106,7 +107,7 @@ def load_model(folder: str | Path, expected_name: str | None = None) -> LearnedM
                 f"needs {tuple(expected[k].shape)}"
             )
         raise CapeError(
-            f"{weights}: does not match the {name} architecture of {folder / 'meta.json'} ("
+            f"{weights}: does not match the {name} architecture of {folder / paths.META} ("
             + "; ".join(details)
             + "). The weights and the config disagree: retrain the model."
         )
@@ -121,13 +122,13 @@ def export_network(
     """Write the trained network of ``folder`` as ``network.npz`` (or ``out``) for the closed
     loop; returns the path written."""
     folder = Path(folder)
-    target = Path(out) if out is not None else folder / "network.npz"
+    target = Path(out) if out is not None else folder / paths.NETWORK
     arrays = load_model(folder, expected_name).network_arrays()
     arrays["weights_sha256"] = np.array(read_meta(folder)["weights_sha256"])  # what it is from
     bad = [k for k, v in arrays.items() if v.dtype.kind == "f" and not np.all(np.isfinite(v))]
     if bad:
         raise CapeError(
-            f"{folder / 'model.pt'}: non-finite weights ({', '.join(bad[:3])}); the training "
+            f"{folder / paths.WEIGHTS}: non-finite weights ({', '.join(bad[:3])}); the training "
             "diverged or the file is damaged: train the model again"
         )
     save_network(target, arrays)

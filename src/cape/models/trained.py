@@ -16,6 +16,7 @@ import numpy as np
 
 from cape.errors import CapeError
 from cape.io import read_csv
+from cape.layout import paths
 from cape.models.physics import ModelPhysics
 from cape.models.registry import build_physics
 
@@ -54,7 +55,7 @@ class TrainedModel:
 
 def read_meta(folder: str | Path) -> dict[str, Any]:
     """A model folder's ``meta.json``, checked for its format version."""
-    path = Path(folder) / "meta.json"
+    path = Path(folder) / paths.META
     try:
         meta = json.loads(path.read_text())
     except FileNotFoundError:
@@ -90,8 +91,9 @@ def read_training(folder: str | Path) -> tuple[Any, dict[str, Any]]:
 
     folder = Path(folder)
     meta = read_meta(folder)
-    path = folder / "loss.csv"
-    fix = f"delete the model folder and train it again (`snakemake --cores 2 {folder}/model.pt`)"
+    path = folder / paths.LOSSES
+    weights = f"{folder}/{paths.WEIGHTS}"
+    fix = f"delete the model folder and train it again (`snakemake --cores 2 {weights}`)"
     losses = read_csv(path, fix, "not a loss curve ({reason}); " + fix.replace("{", "{{"))
     missing = [c for c in LOSS_COLUMNS if c not in losses]
     if missing or losses.empty:
@@ -103,11 +105,11 @@ def read_training(folder: str | Path) -> tuple[Any, dict[str, Any]]:
     best = meta.get("best_val_loss")
     if isinstance(best, bool) or not isinstance(best, int | float) or not math.isfinite(best):
         raise CapeError(
-            f"{folder / 'meta.json'}: `best_val_loss` is {best!r}, not a finite number; {fix}"
+            f"{folder / paths.META}: `best_val_loss` is {best!r}, not a finite number; {fix}"
         )
     epoch = meta.get("best_epoch")
     if isinstance(epoch, bool) or not isinstance(epoch, int) or epoch < 0:
-        raise CapeError(f"{folder / 'meta.json'}: `best_epoch` is {epoch!r}, not an epoch; {fix}")
+        raise CapeError(f"{folder / paths.META}: `best_epoch` is {epoch!r}, not an epoch; {fix}")
     return numbers, meta
 
 
@@ -135,7 +137,7 @@ def load_trained(
     meta = read_meta(folder)
     physics = load_physics(folder, expected_name, meta)
     weights = meta.get("weights_sha256") or ""  # the network must be exported from them
-    network = load_network(Path(folder) / "network.npz", compile_settings, weights)
+    network = load_network(Path(folder) / paths.NETWORK, compile_settings, weights)
     shape, expected = (
         (network.history, network.n_outputs),
         (
@@ -145,7 +147,7 @@ def load_trained(
     )
     if shape != expected:
         raise CapeError(
-            f"{Path(folder) / 'network.npz'}: built for windows of {shape[0]} rows and "
+            f"{Path(folder) / paths.NETWORK}: built for windows of {shape[0]} rows and "
             f"{shape[1]} parameters, the {physics.name} model of meta.json has {expected[0]} and "
             f"{expected[1]}; delete it and export it again from model.pt"
         )

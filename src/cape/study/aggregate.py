@@ -66,7 +66,7 @@ class CurrentModels:
             from cape.models.trained import read_meta
 
             folder = paths.model_under(self.root, model, replicate)
-            self._seen[key] = (folder / "meta.json", str(read_meta(folder).get("weights_sha256")))
+            self._seen[key] = (folder / paths.META, str(read_meta(folder).get("weights_sha256")))
         return self._seen[key]
 
 

@@ -91,7 +91,7 @@ def run_series(row: Mapping[str, Any], series_paths: str = "") -> pd.DataFrame:
     notebook. Empty (a notebook run by hand): any run under ``results/runs``."""
     folder = run_dir(paths.RUNS, row)
     declared_files = [item for item in series_paths.split(",") if item]
-    if declared_files and str(folder / "timeseries.parquet") not in declared_files:
+    if declared_files and str(folder / paths.SERIES) not in declared_files:
         raise CapeError(
             f"{folder}: the notebook reads this run's series, but its rule does not declare it "
             "(common.smk's example_series); add it there"

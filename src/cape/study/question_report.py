@@ -32,7 +32,7 @@ def draw_meta(model: str, replicate: int) -> dict[str, Any]:
     """A draw's meta.json (``cape draw`` wrote it), or {} where there is none yet."""
     from cape.io import read_json
 
-    path = Path(paths.model_dir(model, replicate), "meta.json")
+    path = Path(paths.model_dir(model, replicate), paths.META)
     if not path.is_file():
         return {}
     return read_json(path, "a draw's metadata", "delete the draw's folder and run again")
@@ -48,7 +48,7 @@ def read_stage_runs(
 
     studies = {settings.study: {"internal": list(settings.models)}}
     runs = stage_runs(settings, plan)
-    pairs = [(run.study, run.folder() / "metrics.json", None, run.replicate) for run in runs]
+    pairs = [(run.study, run.folder() / paths.METRICS, None, run.replicate) for run in runs]
     frame = collect_runs(pairs, studies, paths.MODELS)
     untrained = {
         (m, r)
@@ -155,7 +155,7 @@ def costs(config: Mapping[str, Any], settings: QuestionSettings, plan: Plan) -> 
         try:
             phases = read_timing(folder).get("job_s", {})
         except Exception:
-            cost.missing.append(str(folder / "timing.json"))
+            cost.missing.append(str(folder / paths.TIMING))
             continue
         cost.runs_s += sum(
             float(phases.get(k, 0.0)) for k in ("startup", "config", "build", "lap", "write")
