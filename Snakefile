@@ -26,5 +26,5 @@ include: "workflow/rules/question.smk"
 
 rule all:
     input:
-        all_targets(),
+        W.all_targets(),
     default_target: True

@@ -3,7 +3,7 @@
 
 rule dataset:
     input:
-        track_files(),
+        W.track_files(),
     output:
         paths.DATASET,
     params:

@@ -3,13 +3,13 @@
 
 rule figure_tracks:
     input:
-        track_files(),
-        data=[paths.dataset(t) for t in DATA_TRACKS],
+        W.track_files(),
+        data=[paths.dataset(t) for t in sorted(config["data"]["tracks"])],
     output:
         pdf=paths.figures("tracks_and_data.pdf"),
         png=paths.figures("tracks_and_data.png"),
     params:
-        data=" ".join(f"--data {shlex.quote(f'{t}={paths.dataset(t)}')}" for t in DATA_TRACKS),
+        data=" ".join(f"--data {shlex.quote(f'{t}={paths.dataset(t)}')}" for t in sorted(config["data"]["tracks"])),
         spec=lambda wildcards: job_spec("figure_tracks", specs.sections(config, "tracks", "data")),
     conda:
         CAPE_ENV

@@ -8,9 +8,9 @@ rule train:
     input:
         data=paths.dataset(config["data"]["train_track"]),
     output:
-        weights=f"{TRAINING_FOLDER}/{paths.WEIGHTS}",
-        meta=f"{TRAINING_FOLDER}/{paths.META}",
-        losses=f"{TRAINING_FOLDER}/{paths.LOSSES}",
+        weights=f"{paths.TRAINING}/{paths.WEIGHTS}",
+        meta=f"{paths.TRAINING}/{paths.META}",
+        losses=f"{paths.TRAINING}/{paths.LOSSES}",
     params:
         spec=lambda wildcards: job_spec("train", specs.training(config, wildcards.model, int(wildcards.training_seed))),
         out=lambda wildcards, output: os.path.dirname(output.weights),
@@ -40,12 +40,12 @@ checkpoint training_health:
     """Did a training work? The checks on the training alone (SPEC §4.2's bar, the stalled
     loss): a checkpoint, since which trainings a model needs depends on them."""
     input:
-        weights=f"{TRAINING_FOLDER}/{paths.WEIGHTS}",
-        meta=f"{TRAINING_FOLDER}/{paths.META}",
-        losses=f"{TRAINING_FOLDER}/{paths.LOSSES}",
+        weights=f"{paths.TRAINING}/{paths.WEIGHTS}",
+        meta=f"{paths.TRAINING}/{paths.META}",
+        losses=f"{paths.TRAINING}/{paths.LOSSES}",
         data=paths.dataset(config["data"]["train_track"]),
     output:
-        f"{TRAINING_FOLDER}/{paths.HEALTH}",
+        f"{paths.TRAINING}/{paths.HEALTH}",
     params:
         spec=lambda wildcards: job_spec("training_health", specs.health(config, wildcards.model)),
         folder=lambda wildcards, input: os.path.dirname(input.weights),
@@ -62,11 +62,11 @@ rule draw:
     """Draw r of a model: its (r + 1)-th training that works, in seed order, up to
     training.max_trainings (SPEC §4); the draw's folder is what every later rule reads."""
     input:
-        unpack(draw_inputs),
+        unpack(W.draw_inputs),
     output:
-        weights=f"{MODEL_FOLDER}/{paths.WEIGHTS}",
-        meta=f"{MODEL_FOLDER}/{paths.META}",
-        losses=f"{MODEL_FOLDER}/{paths.LOSSES}",
+        weights=f"{paths.MODEL}/{paths.WEIGHTS}",
+        meta=f"{paths.MODEL}/{paths.META}",
+        losses=f"{paths.MODEL}/{paths.LOSSES}",
     localrule: True
     params:
         # (no `health` while a checkpoint is pending: the job is planned again once it is done)
@@ -74,7 +74,7 @@ rule draw:
             f"--training {shlex.quote(os.path.dirname(h))}" for h in getattr(input, "health", [])
         ),
         out=lambda wildcards, output: os.path.dirname(output.weights),
-        cap=draw_max_trainings,
+        cap=W.draw_max_trainings,
     conda:
         CAPE_ENV
     log:
@@ -86,11 +86,11 @@ rule draw:
 
 rule freeze:
     input:
-        weights=f"{MODEL_FOLDER}/{paths.WEIGHTS}",
-        meta=f"{MODEL_FOLDER}/{paths.META}",
+        weights=f"{paths.MODEL}/{paths.WEIGHTS}",
+        meta=f"{paths.MODEL}/{paths.META}",
         data=paths.dataset(config["data"]["train_track"]),
     output:
-        f"{MODEL_FOLDER}/{paths.FROZEN_PHI}",
+        f"{paths.MODEL}/{paths.FROZEN_PHI}",
     params:
         spec=lambda wildcards: job_spec("freeze", specs.sections(config, "data")),
         folder=lambda wildcards, input: os.path.dirname(input.weights),
@@ -105,10 +105,10 @@ rule freeze:
 
 rule export_network:
     input:
-        weights=f"{MODEL_FOLDER}/{paths.WEIGHTS}",
-        meta=f"{MODEL_FOLDER}/{paths.META}",
+        weights=f"{paths.MODEL}/{paths.WEIGHTS}",
+        meta=f"{paths.MODEL}/{paths.META}",
     output:
-        f"{MODEL_FOLDER}/{paths.NETWORK}",
+        f"{paths.MODEL}/{paths.NETWORK}",
     localrule: True
     params:
         folder=lambda wildcards, input: os.path.dirname(input.weights),
@@ -124,7 +124,7 @@ rule export_network:
 
 rule openloop_table:
     input:
-        models=lambda wildcards: trained_models(int(wildcards.replicate)),
+        models=lambda wildcards: W.trained_models(int(wildcards.replicate)),
         train=paths.dataset(config["data"]["train_track"]),
         test=paths.dataset(config["data"]["test_track"]),
     output:
@@ -132,7 +132,7 @@ rule openloop_table:
         md=f"{paths.REPLICATE_TABLES}/table04_openloop_rmse.md",
         tex=f"{paths.REPLICATE_TABLES}/table04_openloop_rmse.tex",
     params:
-        models=lambda wildcards: model_args(int(wildcards.replicate)),
+        models=lambda wildcards: W.model_args(int(wildcards.replicate)),
         spec=lambda wildcards: job_spec("openloop_table", specs.sections(config, "data", "training")),
     conda:
         CAPE_ENV
@@ -147,14 +147,14 @@ rule openloop_table:
 
 rule complexity_table:
     input:
-        models=lambda wildcards: trained_models(int(wildcards.replicate)),
+        models=lambda wildcards: W.trained_models(int(wildcards.replicate)),
         test=paths.dataset(config["data"]["test_track"]),
     output:
         csv=f"{paths.REPLICATE_TABLES}/table01_model_complexity.csv",
         md=f"{paths.REPLICATE_TABLES}/table01_model_complexity.md",
         tex=f"{paths.REPLICATE_TABLES}/table01_model_complexity.tex",
     params:
-        models=lambda wildcards: model_args(int(wildcards.replicate)),
+        models=lambda wildcards: W.model_args(int(wildcards.replicate)),
         spec=lambda wildcards: job_spec("complexity_table", specs.sections(config, "training")),
     conda:
         CAPE_ENV
@@ -169,7 +169,7 @@ rule complexity_table:
 
 rule figure_models:
     input:
-        models=trained_models(),
+        models=W.trained_models(),
         test=paths.dataset(config["data"]["test_track"]),
     output:
         phi_pdf=paths.figures("model_phi_ethzmobil.pdf"),
@@ -177,7 +177,7 @@ rule figure_models:
         curves_pdf=paths.figures("training_curves.pdf"),
         curves_png=paths.figures("training_curves.png"),
     params:
-        models=model_args(),
+        models=W.model_args(),
         spec=lambda wildcards: job_spec("figure_models", specs.sections(config, "data", "models")),
     conda:
         CAPE_ENV

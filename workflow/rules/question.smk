@@ -7,7 +7,7 @@
 rule question:
     """The runs of the question's current stage (`cape question` runs it, stage by stage)."""
     input:
-        question_targets(),
+        W.question_targets(),
     localrule: True
 
 
@@ -18,13 +18,13 @@ rule notebook_question:
         notebook=f"{NOTEBOOKS}/question.ipynb",
         looks=paths.QUESTION_LOOKS,
     output:
-        figures("question", paths.scoped(paths.QUESTION, "figures"), ".pdf"),
-        figures("question", paths.scoped(paths.QUESTION, "figures"), ".png"),
-        tables("question", paths.scoped(paths.QUESTION, "tables")),
+        W.figures("question", paths.scoped(paths.QUESTION, "figures"), ".pdf"),
+        W.figures("question", paths.scoped(paths.QUESTION, "figures"), ".png"),
+        W.tables("question", paths.scoped(paths.QUESTION, "tables")),
         notebook=paths.scoped(paths.QUESTION, "notebooks", "question.ipynb"),
         html=paths.scoped(paths.QUESTION, "notebooks", "question.html"),
     params:
-        nb=lambda wildcards, input: papermill_args(
+        nb=lambda wildcards, input: W.papermill_args(
             "notebook_question",
             looks_path=input.looks,
             figure_dir=paths.scoped(paths.QUESTION, "figures"),

@@ -3,7 +3,7 @@
 
 rule raceline:
     input:
-        track_files(),
+        W.track_files(),
     output:
         line=paths.RACELINE,
         pdf=paths.figures("raceline_{track}.pdf"),

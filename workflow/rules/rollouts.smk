@@ -3,14 +3,14 @@
 
 rule solver:
     input:
-        unpack(solver_inputs),
+        unpack(W.solver_inputs),
     output:
         paths.SOLVER,
     params:
         spec=lambda wildcards: job_spec(
             "solver", specs.rollout(config, wildcards.controller, wildcards.internal, solver=True)
         ),
-        models=lambda wildcards: model_folder_args(wildcards, [wildcards.internal]),
+        models=lambda wildcards: W.model_folder_args(wildcards, [wildcards.internal]),
     conda:
         CAPE_ENV
     log:
@@ -24,7 +24,7 @@ rule solver:
 
 rule rollout:
     input:
-        unpack(rollout_inputs),
+        unpack(W.rollout_inputs),
     output:
         metrics=f"{RUN_FOLDER}/{paths.METRICS}",
         timing=f"{RUN_FOLDER}/{paths.TIMING}",
@@ -34,8 +34,8 @@ rule rollout:
             "rollout", specs.rollout(config, wildcards.controller, wildcards.plant, wildcards.internal)
         ),
         out=lambda wildcards, output: os.path.dirname(output.metrics),
-        models=lambda wildcards: model_folder_args(wildcards, rollout_models(wildcards)),
-        data=lambda wildcards, input: training_data_arg(input),
+        models=lambda wildcards: W.model_folder_args(wildcards, W.rollout_models(wildcards)),
+        data=lambda wildcards, input: W.training_data_arg(input),
     conda:
         CAPE_ENV
     log:
@@ -53,8 +53,8 @@ rule rollout:
 rule rollouts:
     """Every closed-loop run of the default target (replicate 0; a named target)."""
     input:
-        solver_outputs(computed_runs({0})),
-        run_outputs(computed_runs({0})),
+        W.solver_outputs(W.computed_runs({0})),
+        W.run_outputs(W.computed_runs({0})),
     localrule: True
 
 
@@ -63,7 +63,7 @@ rule figure_rollout:
     input:
         metrics=f"{RUN_FOLDER}/{paths.METRICS}",
         series=f"{RUN_FOLDER}/{paths.SERIES}",
-        raceline=raceline_path(),
+        raceline=W.raceline_path(),
     output:
         pdf=f"{paths.ROLLOUT_FIGURES}/{RUN_STEM}.pdf",
         png=f"{paths.ROLLOUT_FIGURES}/{RUN_STEM}.png",

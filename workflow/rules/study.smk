@@ -10,7 +10,7 @@ rule aggregate:
     success rates in <scope>/study/summary.parquet (results/: replicate 0; results/replicates/:
     every training replicate)."""
     input:
-        lambda wildcards: rollout_targets(set(SCOPES[wildcards.scope])),
+        lambda wildcards: W.rollout_targets(set(SCOPES[wildcards.scope])),
     output:
         runs=paths.STUDY_RUNS,
         summary=paths.STUDY_SUMMARY,
@@ -35,14 +35,14 @@ rule notebook_setup:
         notebook=f"{NOTEBOOKS}/setup.ipynb",
     output:
         *reported_figures("setup", paths.FIGURES, "../report/fig01.rst", "Set-up"),
-        figures("setup", paths.FIGURES, ".pdf"),
-        tables("setup", paths.TABLES),
+        W.figures("setup", paths.FIGURES, ".pdf"),
+        W.tables("setup", paths.TABLES),
         notebook=paths.notebooks("setup.ipynb"),
         html=paths.notebooks("setup.html"),
     params:
-        nb=lambda wildcards: papermill_args(
+        nb=lambda wildcards: W.papermill_args(
             "notebook_setup",
-            spec=notebook_spec("setup"),
+            spec=W.notebook_spec("setup"),
             figure_dir=paths.FIGURES,
             table_dir=paths.TABLES,
         ),
@@ -62,21 +62,21 @@ rule notebook_closed_loop:
         notebook=f"{NOTEBOOKS}/closed_loop.ipynb",
         runs=paths.study_runs(),
         summary=paths.study_summary(),
-        raceline=raceline_path(),
-        series=lambda wildcards: example_series(wildcards.study),
+        raceline=W.raceline_path(),
+        series=lambda wildcards: W.example_series(wildcards.study),
     output:
         *reported_figures("closed_loop", paths.figures("{study}"), "../report/closed_loop.rst", "{study} study"),
-        figures("closed_loop", paths.figures("{study}"), ".pdf"),
-        tables("closed_loop", paths.tables("{study}")),
+        W.figures("closed_loop", paths.figures("{study}"), ".pdf"),
+        W.tables("closed_loop", paths.tables("{study}")),
         notebook=paths.notebooks("{study}.ipynb"),
         html=paths.notebooks("{study}.html"),
     wildcard_constraints:
-        study=studies_of_kind("closed_loop"),
+        study=W.studies_of_kind("closed_loop"),
     params:
-        nb=lambda wildcards, input: papermill_args(
+        nb=lambda wildcards, input: W.papermill_args(
             "notebook_closed_loop",
             study=wildcards.study,
-            spec=notebook_spec("closed_loop"),
+            spec=W.notebook_spec("closed_loop"),
             runs_path=input.runs,
             summary_path=input.summary,
             raceline=input.raceline,
@@ -102,17 +102,17 @@ rule notebook_bicycle:
         summary=paths.study_summary(),
     output:
         *reported_figures("bicycle", paths.figures("{study}"), "../report/bicycle.rst", "{study} study"),
-        figures("bicycle", paths.figures("{study}"), ".pdf"),
-        tables("bicycle", paths.tables("{study}")),
+        W.figures("bicycle", paths.figures("{study}"), ".pdf"),
+        W.tables("bicycle", paths.tables("{study}")),
         notebook=paths.notebooks("{study}.ipynb"),
         html=paths.notebooks("{study}.html"),
     wildcard_constraints:
-        study=studies_of_kind("bicycle"),
+        study=W.studies_of_kind("bicycle"),
     params:
-        nb=lambda wildcards, input: papermill_args(
+        nb=lambda wildcards, input: W.papermill_args(
             "notebook_bicycle",
             study=wildcards.study,
-            spec=notebook_spec("bicycle"),
+            spec=W.notebook_spec("bicycle"),
             summary_path=input.summary,
             figure_dir=paths.figures(wildcards.study),
             table_dir=paths.tables(wildcards.study),
@@ -131,20 +131,20 @@ rule notebook_ablation:
     input:
         notebook=f"{NOTEBOOKS}/ablation.ipynb",
         runs=paths.study_runs(),
-        raceline=raceline_path(),
-        series=lambda wildcards: example_series(wildcards.study),
+        raceline=W.raceline_path(),
+        series=lambda wildcards: W.example_series(wildcards.study),
     output:
         *reported_figures("ablation", paths.figures("{study}"), "../report/fig04.rst", "{study} study"),
-        figures("ablation", paths.figures("{study}"), ".pdf"),
+        W.figures("ablation", paths.figures("{study}"), ".pdf"),
         notebook=paths.notebooks("{study}.ipynb"),
         html=paths.notebooks("{study}.html"),
     wildcard_constraints:
-        study=studies_of_kind("ablation"),
+        study=W.studies_of_kind("ablation"),
     params:
-        nb=lambda wildcards, input: papermill_args(
+        nb=lambda wildcards, input: W.papermill_args(
             "notebook_ablation",
             study=wildcards.study,
-            spec=notebook_spec("ablation"),
+            spec=W.notebook_spec("ablation"),
             runs_path=input.runs,
             raceline=input.raceline,
             series_paths=input.series,
@@ -164,17 +164,17 @@ rule notebook_failures:
     input:
         notebook=f"{NOTEBOOKS}/failures.ipynb",
         runs=paths.study_runs(),
-        raceline=raceline_path(),
+        raceline=W.raceline_path(),
     output:
         *reported_figures("failures", paths.figures("{study}"), "../report/failures.rst", "{study} study"),
-        figures("failures", paths.figures("{study}"), ".pdf"),
+        W.figures("failures", paths.figures("{study}"), ".pdf"),
         notebook=paths.notebooks("failures_{study}.ipynb"),
         html=paths.notebooks("failures_{study}.html"),
     params:
-        nb=lambda wildcards, input: papermill_args(
+        nb=lambda wildcards, input: W.papermill_args(
             "notebook_failures",
             study=wildcards.study,
-            spec=notebook_spec("failures"),
+            spec=W.notebook_spec("failures"),
             runs_path=input.runs,
             raceline=input.raceline,
             figure_dir=paths.figures(wildcards.study),
@@ -193,24 +193,24 @@ rule notebook_scorecard:
     per training replicate and pooled (from the config's paper study), the claims' effects
     figure, tables 4 and 1 over the replicates, and RESULTS.md."""
     input:
-        unpack(scorecard_inputs),
+        unpack(W.scorecard_inputs),
         notebook=f"{NOTEBOOKS}/scorecard.ipynb",
         runs=paths.STUDY_RUNS,
         summary=paths.study_summary(),
-        raceline=raceline_path(),
+        raceline=W.raceline_path(),
     output:
         report(paths.scoped("{scope}", "tables", "table08_scorecard.md"), caption="../report/scorecard.rst", category="Claims"),
         multiext(paths.scoped("{scope}", "tables", "table08_scorecard"), ".csv", ".tex"),
         *(paths.scoped("{scope}", "tables", f"{name}{ext}") for name in WHOLE_STUDY_NOTEBOOKS["scorecard"].tables if name != "table08_scorecard" for ext in TABLE_EXTS),
         *reported_figures("scorecard", paths.scoped("{scope}", "figures"), "../report/scorecard.rst", "Claims"),
-        figures("scorecard", paths.scoped("{scope}", "figures"), ".pdf"),
+        W.figures("scorecard", paths.scoped("{scope}", "figures"), ".pdf"),
         report(paths.GLANCE, caption="../report/glance.rst", category="Claims"),
         notebook=paths.scoped("{scope}", "notebooks", "scorecard.ipynb"),
         html=paths.scoped("{scope}", "notebooks", "scorecard.html"),
     params:
-        nb=lambda wildcards, input: papermill_args(
+        nb=lambda wildcards, input: W.papermill_args(
             "notebook_scorecard",
-            spec=notebook_spec("scorecard"),
+            spec=W.notebook_spec("scorecard"),
             runs_path=input.runs,
             summary_path=input.summary,
             raceline=input.raceline,
@@ -234,7 +234,7 @@ rule notebook_scorecard:
 rule study:
     """Every table, figure and executed notebook of the study (a named target)."""
     input:
-        study_targets(),
+        W.study_targets(),
     localrule: True
 
 
@@ -242,23 +242,13 @@ rule replicates:
     """The paper's study for every training replicate (SPEC §4, §8) and its scorecard under
     results/replicates/ (a named target, outside the default: about as long again as it)."""
     input:
-        replicate_targets(),
+        W.replicate_targets(),
     localrule: True
 
 
 
-# A scope's runs.parquet whose runs are not all there: the targets that name every file rebuild
-# them and it; asked for alone it would stay as it is, so say so (cape/study/stale.py).
+# A scope's runs.parquet whose runs are not all there: say which target rebuilds it
+# (cape/study/stale.py).
 if workflow.is_main_process:
-    for _scope, _replicates in SCOPES.items():
-        _missing = missing_runs(
-            paths.study_runs(_scope),
-            (f"{run.folder()}/{paths.METRICS}" for run in computed_runs(set(_replicates))),
-        )
-        if _missing:
-            _target = "all" if _scope == paths.DEFAULT_SCOPE else "replicates"
-            print(
-                f"{paths.study_runs(_scope)}: {len(_missing)} of its runs are missing (e.g. "
-                f"{_missing[0].parent}); `snakemake --cores 2 {_target}` rebuilds them and it",
-                file=sys.stderr,
-            )
+    for _message in W.stale_summaries():
+        print(_message, file=sys.stderr)

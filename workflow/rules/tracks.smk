@@ -3,7 +3,7 @@
 
 rule tracks:
     output:
-        track_files(),
+        W.track_files(),
     params:
         spec=lambda wildcards: job_spec("tracks", specs.sections(config, "tracks")),
     conda:
