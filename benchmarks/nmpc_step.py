@@ -41,12 +41,13 @@ from _common import add_config, json_output, run, study_config  # a sibling modu
 
 from cape.closedloop.setup import build_run
 from cape.layout import paths
+from cape.specs.run import RunSpec
 
 Problem = tuple[np.ndarray, np.ndarray, tuple[float, float]]
 
 
 def record_lap(config: dict[str, Any], internal: str, eta: float, models: Path) -> list[Problem]:
-    run = build_run(config, "truth", "nmpc", eta, 0, internal, models)
+    run = build_run(RunSpec.from_config(config, "nmpc"), "truth", eta, 0, internal, models)
     controller = run.controller
     solve = controller.solve
     problems: list[Problem] = []
@@ -68,7 +69,7 @@ def controller_with(config: dict[str, Any], internal: str, models: Path, **nmpc:
         cfg["controllers"]["nmpc"][key] = value
     if cfg["controllers"]["nmpc"]["solver"] == "ipopt":  # the reference: no compiled library
         cfg["controllers"]["nmpc"]["compile"] = {"enabled": False}
-    return build_run(cfg, "truth", "nmpc", 0.0, 0, internal, models).controller
+    return build_run(RunSpec.from_config(cfg, "nmpc"), "truth", 0.0, 0, internal, models).controller
 
 
 def replay(controller: Any, problems: list[Problem]) -> dict[str, np.ndarray]:

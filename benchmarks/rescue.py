@@ -33,6 +33,7 @@ from _common import add_config, json_output, run, study_config  # a sibling modu
 from cape.closedloop.setup import ModelFolders, build_run
 from cape.errors import CapeError
 from cape.layout import paths
+from cape.specs.run import RunSpec
 
 
 def capped(controller: Any, cap: int) -> Any:
@@ -70,9 +71,8 @@ def one_lap(
     caps: list[int],
     sqp_iterations: int,
 ) -> tuple[list[dict], dict]:
-    run = build_run(
-        config, plant, controller_name, eta, seed, model, ModelFolders(models), None
-    )  # fmt: skip
+    spec = RunSpec.from_config(config, controller_name)
+    run = build_run(spec, plant, eta, seed, model, ModelFolders(models), None)
     controller = run.controller
     rescue = controller.rescue
     variants: dict[Any, Any] = {cap: capped(controller, cap) for cap in caps}

@@ -43,6 +43,7 @@ def rescue_setting(text: str) -> Any:
 def rerun(task: dict[str, Any]) -> dict[str, Any]:
     """One run of the study again, with the controller's rescue set to ``task['rescue']``."""
     from cape.closedloop.setup import ModelFolders, build_run
+    from cape.specs.run import RunSpec
 
     config = copy.deepcopy(task["config"])
     config["controllers"][task["controller"]]["sqp"]["rescue"] = task["rescue"]
@@ -55,8 +56,8 @@ def rerun(task: dict[str, Any]) -> dict[str, Any]:
     if task["fatrop"]:
         config["controllers"][task["controller"]]["fatrop"]["options"] = task["fatrop"]
     run = build_run(
-        config, task["plant"], task["controller"], task["eta"], task["seed"], task["internal"],
-        ModelFolders(Path(paths.models_of(task["replicate"]))), None,
+        RunSpec.from_config(config, task["controller"]), task["plant"], task["eta"], task["seed"],
+        task["internal"], ModelFolders(Path(paths.models_of(task["replicate"]))), None,
     )  # fmt: skip
     solves: list[tuple[bool, int, float]] = []  # every rescue: converged, iterations, ms
     rescue = run.controller.rescue if task["rescue"] in ("ipopt", "fatrop") else None

@@ -33,6 +33,7 @@ from nmpc_step import replay  # a sibling script: run as `python benchmarks/step
 from cape.closedloop.setup import ModelFolders, build_run
 from cape.errors import CapeError
 from cape.layout import paths
+from cape.specs.run import RunSpec
 
 
 def build(config: dict, args: argparse.Namespace, model: str, law: str, eta: float) -> Any:
@@ -40,7 +41,7 @@ def build(config: dict, args: argparse.Namespace, model: str, law: str, eta: flo
     training data)."""
     plant = model if args.plant == "learned" else "truth"
     return build_run(
-        config, plant, law, eta, args.seed, model,
+        RunSpec.from_config(config, law), plant, eta, args.seed, model,
         ModelFolders(Path(paths.models_of(args.replicate))), None,
     )  # fmt: skip
 

@@ -1,7 +1,7 @@
 """The code base's floors: no module imports a package above its own (docs/architecture.md).
 
-cli → study → plots → closedloop → controllers → models → data → tracks → vehicle → config,
-registry, compiled → layout (every name and path) → the bottom floor's helpers (errors, io,
+cli, workflow → study → plots → closedloop → controllers → models → data → tracks → vehicle →
+specs (what a job reads) → config, registry, compiled → layout (every name and path) → the bottom floor's helpers (errors, io,
 integrity, schemas, …): the order in which a run is built, each floor using only the ones below.
 """
 
@@ -15,8 +15,9 @@ from cape.config import REPO_ROOT
 FLOORS = [
     ("errors", "io", "ownership", "integrity", "buffered", "locks", "paper", "tables", "parquet",
      "interrupt", "bytecode", "schemas"),
-    ("layout",), ("config", "registry", "compiled"), ("vehicle",), ("tracks",), ("data",),
-    ("models",), ("controllers",), ("closedloop",), ("plots",), ("study",), ("cli",),
+    ("layout",), ("config", "registry", "compiled"), ("specs",), ("vehicle",), ("tracks",),
+    ("data",), ("models",), ("controllers",), ("closedloop",), ("plots",), ("study",),
+    ("cli", "workflow"),
 ]  # fmt: skip
 LEVEL = {name: level for level, names in enumerate(FLOORS) for name in names}
 

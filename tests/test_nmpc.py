@@ -14,6 +14,7 @@ from cape.closedloop.rollout import initial_state
 from cape.closedloop.setup import build_internal, build_run
 from cape.controllers.internal import N_STATE
 from cape.integrity import sealed_arrays
+from cape.specs.run import RunSpec
 
 
 @pytest.fixture(scope="session")
@@ -48,7 +49,8 @@ def _run(cfg, solver="sqp", controller="nmpc", eta=0.0, **kw):
     c["controllers"][controller]["solver"] = solver
     if solver == "ipopt":  # IPOPT is the reference here, not the fast path: skip compiling it
         c["controllers"][controller]["compile"]["enabled"] = False
-    return build_run(c, "truth", controller, eta, 0, "truth", Path("unused"), c["_raceline"], **kw)
+    spec = RunSpec.from_config(c, controller)
+    return build_run(spec, "truth", eta, 0, "truth", Path("unused"), c["_raceline"], **kw)
 
 
 def _recorded(run, limit: int | None = None) -> list[tuple]:
@@ -84,7 +86,7 @@ def test_nmpc_with_the_true_internal_model_laps(cfg) -> None:
 
 
 def test_internal_step_is_the_same_on_numpy_and_casadi(cfg) -> None:
-    internal = build_internal(cfg, "truth", Path("unused"))
+    internal = build_internal(RunSpec.from_config(cfg, "nmpc"), "truth", Path("unused"))
     x, u, phi = ca.SX.sym("x", N_STATE), ca.SX.sym("u", 2), ca.SX.sym("phi", internal.n_phi)
     f = ca.Function("f", [x, u, phi], [internal.step(x, u, phi)])
     rng = np.random.default_rng(0)

@@ -318,11 +318,12 @@ def test_bayesrace_long_line_is_selectable(config, track_dir) -> None:
     import copy
 
     from cape.closedloop.setup import build_run
+    from cape.specs.run import RunSpec
 
     cfg = copy.deepcopy(config)
     cfg["reference"]["line"] = "bayesrace_long"
     cfg["tracks"]["dir"] = str(track_dir)
-    run = build_run(cfg, "truth", "pid", 0.0, 0, None, Path("unused"))
+    run = build_run(RunSpec.from_config(cfg, "pid"), "truth", 0.0, 0, None, Path("unused"))
     assert run.line.path.length > 11.0 and run.line.v_ref(0.0) == pytest.approx(
         1.0
     )  # starts at rest

@@ -86,20 +86,22 @@ def test_meta_json_without_its_name_names_the_file(model_folder: Path) -> None:
 
 def test_damaged_raceline_and_frozen_phi_are_refused(config, track_dir, tmp_path: Path) -> None:
     from cape.closedloop.setup import frozen_phi, load_reference
+    from cape.specs.run import ReferenceSpec
 
     cfg = copy.deepcopy(config)
     cfg["tracks"]["dir"] = str(track_dir)
+    reference = ReferenceSpec.from_config(cfg)
     line = tmp_path / "line.npz"
     theta = np.linspace(0, 2 * np.pi, 200, endpoint=False)
     arrays = {"x": np.cos(theta), "y": np.sin(theta), "speed": np.ones(200)}
     np.savez(line, **sealed_arrays(arrays))
-    load_reference(cfg, str(line))  # intact: fine
+    load_reference(reference, str(line))  # intact: fine
     np.savez(line, **{**sealed_arrays(arrays), "x": arrays["x"] + 1e-3})
     with pytest.raises(CapeError, match=r"line\.npz: its content does not match .* rebuild"):
-        load_reference(cfg, str(line))
+        load_reference(reference, str(line))
     line.write_bytes(b"garbage")
     with pytest.raises(CapeError, match=r"line\.npz: not a readable raceline"):
-        load_reference(cfg, str(line))
+        load_reference(reference, str(line))
 
     from cape.models.checkpoint import save_model
     from cape.models.training import build_model

@@ -50,14 +50,14 @@ def cmd_build_solver(args: argparse.Namespace) -> None:
     from cape.closedloop.setup import build_run
     from cape.io import write_text
     from cape.ownership import Output
+    from cape.specs.run import RunSpec
 
-    config = _config(args)
+    spec = RunSpec.from_config(_config(args), args.controller)
     identity = f"{args.controller} with internal model {args.internal}"
     _claim(args, Output(Path(args.out), "solver record", identity, JSON_SUFFIXES))
     run = build_run(
-        config,
+        spec,
         TRUTH,  # the plant does not enter the controller's NLP
-        args.controller,
         0.0,
         0,
         args.internal,
@@ -113,9 +113,10 @@ def cmd_rollout(args: argparse.Namespace) -> None:
     from cape.io import atomic_folder, check_replaceable
     from cape.layout.record import write_run_files, write_timing
     from cape.layout.runs import RUN_FILES, RunId
+    from cape.specs.run import RunSpec
 
     imported = time.perf_counter()
-    config = _config(args)
+    spec = RunSpec.from_config(_config(args), args.controller)
     run = RunId(args.study, args.plant, args.internal or args.plant, args.controller, args.eta,
                 args.seed, args.replicate)  # fmt: skip
     check_run(run)
@@ -123,7 +124,7 @@ def cmd_rollout(args: argparse.Namespace) -> None:
     _claim(args, _run_output(out, run))  # before the lap, not after it
     check_replaceable(out, RUN_FILES, RUN_WHAT)
     record = run_job(
-        config,
+        spec,
         run,
         args.internal,
         _model_folders(args),
@@ -167,13 +168,14 @@ def cmd_plot_rollout(args: argparse.Namespace) -> None:
     from cape.layout.record import read_metrics, read_series
     from cape.plots.rollout import plot_rollout
     from cape.plots.style import save_figure
+    from cape.specs.run import ReferenceSpec
 
-    config = _config(args)
+    reference = ReferenceSpec.from_config(_config(args))
     _claim(args, *_files(args.out, "figure of a run", FIGURE_SUFFIXES))
     run = Path(args.run)
     metrics = read_metrics(run / paths.METRICS)
     series = read_series(run)
-    line, track = load_reference(config, args.raceline)
+    line, track = load_reference(reference, args.raceline)
     outcome = (
         f"lap {metrics['lap_time']:.2f} s"
         if metrics["success"]

@@ -19,11 +19,12 @@ import numpy as np
 
 from cape.closedloop.provenance import run_models
 from cape.closedloop.setup import ModelFolders, build_run
-from cape.config import check_eta, section
+from cape.config import check_eta
 from cape.controllers import controller_class
 from cape.errors import CapeError
 from cape.layout.names import check_name
 from cape.layout.runs import RunId
+from cape.specs.run import RunSpec
 
 
 @dataclass
@@ -65,7 +66,7 @@ def check_run(run: RunId) -> float:
 
 
 def run_job(
-    config: dict[str, Any],
+    spec: RunSpec,
     run: RunId,
     internal: str | None,
     folders: ModelFolders,
@@ -76,24 +77,19 @@ def run_job(
     started: float,
     imported: float,
 ) -> RunRecord:
-    """Run ``run`` (checked by ``check_run``) with the trained models in ``folders``.
-    ``internal``: the controller's internal model as asked for (None: the plant's own; the
-    record names the one used); ``validate``: check the controller's settings (a rule's config
-    was validated when the workflow started)."""
+    """Run ``run`` (checked by ``check_run``) with ``spec``'s settings and the trained models
+    in ``folders``. ``internal``: the controller's internal model as asked for (None: the
+    plant's own; the record names the one used); ``validate``: check the controller's settings
+    (a job's specification was validated when the workflow started)."""
     eta = check_eta(run.eta, "--eta")
-    entries = section(config, "controllers")  # an unknown name: build_run says so
-    needs = (
-        run.controller in entries
-        and controller_class(run.controller, entries[run.controller]).needs_internal_model
-    )
+    needs = controller_class(spec.controller, spec.controller_entry).needs_internal_model
     used = run_models(
-        config, run.plant, (internal or run.plant) if needs else None, folders, run.replicate
+        spec.models, run.plant, (internal or run.plant) if needs else None, folders, run.replicate
     )
     configured = time.perf_counter()
     assembled = build_run(
-        config,
+        spec,
         run.plant,
-        run.controller,
         eta,
         run.seed,
         internal,

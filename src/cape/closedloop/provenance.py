@@ -10,10 +10,10 @@ its replicate's current models (cape.study.aggregate).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 from cape.closedloop.setup import ModelFolders
-from cape.config import section
 from cape.errors import CapeError
 from cape.layout import paths
 from cape.layout.names import PlantName
@@ -27,11 +27,15 @@ def model_replicate(meta: dict[str, Any]) -> int | None:
 
 
 def run_models(
-    config: dict[str, Any], plant: str, internal: str | None, folders: ModelFolders, replicate: int
+    models: Mapping[str, Any],
+    plant: str,
+    internal: str | None,
+    folders: ModelFolders,
+    replicate: int,
 ) -> dict[str, dict[str, Any]]:
-    """Role (``plant``, ``internal``) → the trained model it uses: name, folder, replicate and
-    weights digest; ``CapeError`` for a model of another training replicate than ``replicate``."""
-    models = section(config, "models")
+    """Role (``plant``, ``internal``) → the trained model it uses (``models``: the config's
+    entries): name, folder, replicate and weights digest; ``CapeError`` for a model of another
+    training replicate than ``replicate``."""
     used: dict[str, dict[str, Any]] = {}
     for role, name in (("plant", plant), ("internal", internal)):
         if name is None:

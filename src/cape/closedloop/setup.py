@@ -17,7 +17,7 @@ from cape.closedloop.disturbances import DisturbancePipeline
 from cape.closedloop.envelope import Envelope
 from cape.closedloop.plants import FixedParameterPlant, LearnedPlant, Plant, TruthPlant
 from cape.closedloop.rollout import RolloutResult, run_lap
-from cape.config import checked_once, section
+from cape.config import checked_once
 from cape.controllers import controller_class
 from cape.controllers.base import Controller, validate_settings
 from cape.controllers.ekf import NoiseLevels
@@ -28,24 +28,22 @@ from cape.layout import paths
 from cape.layout.names import PlantName, truth_structure
 from cape.models.registry import model_class
 from cape.models.trained import TrainedModel, load_physics, load_trained, read_meta
+from cape.specs.run import ReferenceSpec, RunSpec
 from cape.tracks import native
 from cape.tracks.reference import ReferenceLine, check_time_limit
 from cape.tracks.track import Track, load_raceline, load_track
 from cape.vehicle.params import ACTUATOR_LIMITS, GROUND_TRUTH
 
 
-def load_reference(config: dict[str, Any], raceline: str | None) -> tuple[ReferenceLine, Track]:
-    settings = section(config, "reference")
-    ts = float(section(config, "data")["ts"])
-    tracks = section(config, "tracks")
-    name = settings["track"]
-    entry = tracks["catalogue"][name]
-    track = load_track(tracks["dir"], name, entry["prefix"], entry["width"])
-    if settings["line"] == "bayesrace_long":
-        rl = load_raceline(tracks["dir"], f"{entry['prefix']}_raceline_long.npz")
+def load_reference(spec: ReferenceSpec, raceline: str | None) -> tuple[ReferenceLine, Track]:
+    """The reference line and its track; ``raceline``: the line's file (default: the
+    workflow's, results/raceline/<track>.npz)."""
+    track = load_track(spec.tracks_dir, spec.track, spec.prefix, spec.width)
+    if spec.line == "bayesrace_long":
+        rl = load_raceline(spec.tracks_dir, f"{spec.prefix}_raceline_long.npz")
         x, y, speed = rl.x, rl.y, rl.speed
     else:
-        path = Path(raceline or paths.raceline(name))
+        path = Path(raceline or paths.raceline(spec.track))
         if not path.is_file():
             raise CapeError(
                 f"{path}: reference raceline missing; build it with `snakemake --cores 1 {path}`"
@@ -58,7 +56,7 @@ def load_reference(config: dict[str, Any], raceline: str | None) -> tuple[Refere
             raise CapeError(f"{path}: not a readable raceline ({exc}); {fix}") from None
         check_arrays(arrays, path, fix)
         x, y, speed = arrays["x"], arrays["y"], arrays["speed"]
-    return ReferenceLine(x, y, speed, settings, ts), track
+    return ReferenceLine(x, y, speed, spec.settings, spec.ts), track
 
 
 @dataclass(frozen=True)
@@ -104,7 +102,7 @@ def frozen_phi(models: Path | ModelFolders, model_name: str) -> dict[str, float]
 
 
 def build_internal(
-    config: dict[str, Any],
+    spec: RunSpec,
     name: str,
     models_dir: Path | ModelFolders,
     loaded: dict[str, TrainedModel] | None = None,
@@ -112,8 +110,7 @@ def build_internal(
     """The controller's internal model by name: a learned model, ``<model>-fixed`` or ``truth``
     (the ground-truth parameters in the Deep Dynamics structure). ``loaded`` holds trained
     models the caller already read (the plant's), so a network is not loaded twice."""
-    models = section(config, "models")
-    ts = float(section(config, "data")["ts"])
+    models, ts = spec.models, spec.ts
     parsed = PlantName.parse(name, models, "--internal")
     kind, model_name = parsed.kind, parsed.model
     if parsed.is_truth:
@@ -126,7 +123,7 @@ def build_internal(
     folder = ModelFolders.of(models_dir)(str(model_name))
     if kind == "learned":
         trained = (loaded or {}).get(str(model_name)) or load_trained(
-            folder, model_name, section(config, "rollout").get("compile")
+            folder, model_name, spec.compile
         )
         return InternalModel(trained.physics, "learned", predictor=trained.network)
     physics = load_physics(folder, model_name)
@@ -135,37 +132,38 @@ def build_internal(
 
 @dataclass
 class Run:
+    """An assembled run: call it to drive the lap."""
+
     plant: Plant
     controller: Controller
     line: ReferenceLine
     track: Track
     disturbances: DisturbancePipeline
-    settings: dict[str, Any]
+    spec: RunSpec
     internal: str
     envelope: Envelope | None = None
     envelope_source: dict[str, str] | None = None  # the training data set: path and digest
 
     def __call__(self) -> RolloutResult:
-        s = self.settings
+        s = self.spec
         return run_lap(
             self.plant,
             self.controller,
             self.line,
             self.track,
             self.disturbances,
-            horizon=int(s["horizon"]),
-            time_limit=float(s["time_limit"]),
-            vx0=float(s["vx0"]),
-            penalty=s["penalty"],
-            failure_window=float(s.get("failure_window", 0.5)),
+            horizon=s.horizon,
+            time_limit=s.time_limit,
+            vx0=s.vx0,
+            penalty=s.penalty,
+            failure_window=s.failure_window,
             envelope=self.envelope,
         )
 
 
 def build_run(
-    config: dict[str, Any],
+    spec: RunSpec,
     plant_name: str,
-    controller_name: str,
     eta: float,
     seed: int,
     internal: str | None,
@@ -174,52 +172,40 @@ def build_run(
     validate: bool = True,
     envelope_data: str | None = None,
 ) -> Run:
-    """Everything one run needs, from names; errors name the missing piece and the fix.
-    ``models_dir``: where the trained models' folders are (a root, or a ``ModelFolders``).
-    ``validate``: check the controller's settings against its schema (skipped for the config a
-    rule passes, which the workflow validated when it started). ``envelope_data``: the training
-    data set whose states bound a learned or fixed-parameter plant (default
-    results/data/DYN-PP-<data.train_track>.npz; SPEC §5.3, ``rollout.plant_envelope``)."""
-    models = section(config, "models")
-    controllers = section(config, "controllers")
-    ts = float(section(config, "data")["ts"])
+    """Everything one run of ``spec``'s controller needs, from names; errors name the missing
+    piece and the fix. ``models_dir``: where the trained models' folders are (a root, or a
+    ``ModelFolders``). ``validate``: check the controller's settings against its schema
+    (skipped for a job's specification, which the workflow validated when it started).
+    ``envelope_data``: the training data set whose states bound a learned or fixed-parameter
+    plant (default results/data/DYN-PP-<train track>.npz; SPEC §5.3)."""
+    models, ts, controller_name = spec.models, spec.ts, spec.controller
     plant_parsed = PlantName.parse(plant_name, models, "--plant")
     kind, model_name = plant_parsed.kind, plant_parsed.model
     if internal is not None:  # a bad name is an error for any controller
         PlantName.parse(internal, models, "--internal")
-    if controller_name not in controllers:
-        known = ", ".join(controllers)
-        raise CapeError(
-            f"--controller {controller_name}: not in the config's `controllers` ({known})"
-        )
-    native.enable(section(config, "rollout").get("compile"))  # projections in C: same numbers
-    line, track = load_reference(config, raceline)
-    check_time_limit(float(section(config, "rollout")["time_limit"]), line.ideal_lap_time())
-    disturbances = DisturbancePipeline.from_config(section(config, "disturbances"), eta, seed)
+    native.enable(spec.compile)  # projections in C: the same numbers
+    line, track = load_reference(spec.reference, raceline)
+    check_time_limit(spec.time_limit, line.ideal_lap_time())
+    disturbances = DisturbancePipeline.from_config(spec.disturbances, eta, seed)
     transform = disturbances.plant_params
     loaded: dict[str, TrainedModel] = {}
     folders = ModelFolders.of(models_dir)
     if plant_parsed.is_truth:
-        compiled = section(config, "rollout").get("compile")
-        plant: Plant = TruthPlant(GROUND_TRUTH.as_dict(), ts, transform, compiled)
+        plant: Plant = TruthPlant(GROUND_TRUTH.as_dict(), ts, transform, spec.compile)
     elif kind == "learned":
-        trained = load_trained(
-            folders(str(model_name)), model_name, section(config, "rollout").get("compile")
-        )
+        trained = load_trained(folders(str(model_name)), model_name, spec.compile)
         loaded[str(model_name)] = trained
         plant = LearnedPlant(trained, transform)
     else:
         physics = load_physics(folders(str(model_name)), expected_name=model_name)
         plant = FixedParameterPlant(physics, frozen_phi(folders, str(model_name)), transform)
     envelope, envelope_source = None, None
-    factor = section(config, "rollout").get("plant_envelope")
-    if not plant_parsed.is_truth and factor is not None:
-        train_track = section(config, "data")["train_track"]
-        path = envelope_data or paths.dataset(train_track)
+    if not plant_parsed.is_truth and spec.plant_envelope is not None:
+        path = envelope_data or paths.dataset(spec.train_track)
         trained_on = read_meta(folders(str(model_name))).get("data_sha256")
-        envelope, envelope_source = Envelope.of_file(path, float(factor), trained_on)
-    cls = controller_class(controller_name, controllers[controller_name])
-    entry = controllers[controller_name]
+        envelope, envelope_source = Envelope.of_file(path, spec.plant_envelope, trained_on)
+    entry = spec.controller_entry
+    cls = controller_class(controller_name, entry)
     if validate:
         validate_settings(cls, controller_name, entry)
     else:  # a rule's config: checked once per entry on this machine (cape.config.checked_once)
@@ -238,12 +224,12 @@ def build_run(
     default_internal = str(plant_parsed)
     internal_model = None
     if cls.needs_internal_model:
-        internal_model = build_internal(config, internal or default_internal, folders, loaded)
+        internal_model = build_internal(spec, internal or default_internal, folders, loaded)
     extra: dict[str, Any] = {}
     if cls.needs_noise_levels:
         extra["levels"] = NoiseLevels.from_pipeline(disturbances)
     controller = cls(
-        controllers[controller_name],
+        entry,
         line,
         ACTUATOR_LIMITS,
         ts,
@@ -259,7 +245,7 @@ def build_run(
         line=line,
         track=track,
         disturbances=disturbances,
-        settings=section(config, "rollout"),
+        spec=spec,
         # a controller without an internal model runs on none: its runs are named after the plant
         internal=(internal or default_internal) if cls.needs_internal_model else default_internal,
         envelope=envelope,
