@@ -113,10 +113,11 @@ def draw_runs(
     """The phases of every run of the config's grid that draw ``replicate`` computes with a
     trained network (of ``models`` only, when given; ``every``: with a network or not); a run
     not computed goes to ``lacking``."""
+    from cape.specs.study import StudySpec
     from cape.study.grid import study_grid
 
     rows, absent = [], []
-    grid = study_grid(config)
+    grid = study_grid(StudySpec.from_config(config))
     for run_id in dict.fromkeys(grid.values()):  # each computed run once
         if run_id.replicate != replicate or not (every or run_id.uses_trained_model()):
             continue

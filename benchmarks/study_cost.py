@@ -53,10 +53,13 @@ def training(lacking: list[str]) -> dict[str, float]:
 def rollouts(config: dict[str, Any], lacking: list[str]) -> list[dict]:
     """One row per computed run of the config's grid: study, controller, and the wall seconds
     of each phase; a run not computed goes to ``lacking``."""
+    from cape.specs.study import StudySpec
     from cape.study.grid import study_grid
 
     rows, absent = [], []
-    for run_id in dict.fromkeys(study_grid(config).values()):  # each computed run once
+    for run_id in dict.fromkeys(
+        study_grid(StudySpec.from_config(config)).values()
+    ):  # each computed run once
         folder = run_id.folder()
         if not folder.is_dir():
             absent.append(str(folder))

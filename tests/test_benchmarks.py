@@ -25,6 +25,7 @@ from cape.config import REPO_ROOT, load_config
 from cape.layout import paths
 from cape.layout.record import write_timing
 from cape.layout.runs import RunId
+from cape.specs.study import StudySpec
 from cape.study.grid import study_grid
 
 BENCHMARKS = REPO_ROOT / "benchmarks"
@@ -147,7 +148,7 @@ def study(tmp_path: Path) -> Path:
 
 def _first_run(folder: Path, replicate: int = 0) -> RunId:
     """The config's first computed run of draw ``replicate`` that uses a trained model."""
-    grid = study_grid(load_config(folder / "config" / "config.yaml"))
+    grid = study_grid(StudySpec.from_config(load_config(folder / "config" / "config.yaml")))
     return next(
         r for r in dict.fromkeys(grid.values())
         if r.replicate == replicate and r.uses_trained_model()

@@ -1,8 +1,9 @@
 """The code base's floors: no module imports a package above its own (docs/architecture.md).
 
 cli, workflow → study → plots → closedloop → controllers → models → data → tracks → vehicle →
-specs (what a job reads) → config, registry, compiled → layout (every name and path) → the bottom floor's helpers (errors, io,
-integrity, schemas, …): the order in which a run is built, each floor using only the ones below.
+specs (what a job reads) → config, registry, compiled → layout (every name and path) → the
+bottom floor's helpers (errors, io, integrity, schemas, …): the order in which a run is built,
+each floor using only the ones below.
 """
 
 from __future__ import annotations

@@ -13,6 +13,7 @@ import pytest
 from scipy import stats
 
 from cape.errors import CapeError
+from cape.specs.study import StudySpec
 from cape.study import sequential_calibration as calib
 from cape.study.question import RowState, evaluate, next_draws
 from cape.study.question_plan import Plan, QuestionSettings, run_overrides, stage_runs
@@ -231,14 +232,15 @@ def test_a_stage_runs_only_the_questions_nmpc_runs() -> None:
     assert per_model["ddm"] == 3 * 11 * 3 * 5
     assert {r.controller for r in runs} == {"nmpc", "anmpc", "rnmpc"}
     assert {r.plant for r in runs} == {"truth"}
-    overrides = run_overrides(config, settings, plan)
+    overrides = run_overrides(StudySpec.from_config(config), settings, plan)
     assert overrides["training"]["replicates"] == 6
     assert overrides["study"]["studies"]["learned"] == {"replicates": [0, 1, 2]}
     assert overrides["question"]["plan"]["draws"] == {"epm": 6, "ddm": 3, "dpm": 6}
     # one cap for every stage, the last one's: twice its 10 draws, or a fixed cap grown alike
     assert overrides["training"]["max_trainings"] == 20
     config["training"]["max_trainings"] = 4  # 4 × 10/3
-    assert run_overrides(config, settings, plan)["training"]["max_trainings"] == 14
+    overrides = run_overrides(StudySpec.from_config(config), settings, plan)
+    assert overrides["training"]["max_trainings"] == 14
 
 
 def test_the_questions_ddm_recipe_is_the_examples() -> None:

@@ -15,6 +15,7 @@ from cape.cli import main
 from cape.errors import CapeError
 from cape.layout.record import write_run_files, write_timing
 from cape.layout.runs import RunId
+from cape.specs.study import StudySpec
 from cape.study.aggregate import collect_runs, mean_ci, summarise
 from cape.study.glance import at_a_glance
 from cape.study.grid import canonical, study_runs
@@ -26,7 +27,7 @@ from cape.study.tables import (
     uncertainty_activation,
 )
 
-STUDIES = {"learned": {"plants": ["epm"]}, "truth": {"plants": ["truth"], "internal": ["epm"]}}
+STUDIES = ("truth",)  # the studies whose runs are about their internal model
 
 
 def _write_run(root: Path, study: str, plant: str, internal: str, controller: str, eta: str,
@@ -97,7 +98,8 @@ def test_a_run_two_studies_ask_for_is_computed_once_and_read_by_both(tmp_path: P
         "ablation": {"plants": ["epm"], "internal": ["ddm", "epm"], "controllers": ["nmpc"],
                      "eta": ["1"]},
     }}  # fmt: skip
-    runs = study_runs(config, ["0", "1"], lambda controller: controller == "nmpc")
+    spec = StudySpec.from_config({"study": config, "disturbances": {"eta": ["0", "1"]}})
+    runs = study_runs(spec, lambda controller: controller == "nmpc")
     assert len(runs) == 4  # learned at η 0 and 1, the ablation's two internal models at η 1
     computed = canonical(runs)
     diagonal = RunId("ablation", "epm", "epm", "nmpc", "1", 0)

@@ -15,6 +15,7 @@ from scipy import stats
 
 from cape.layout.runs import RunId
 from cape.models.health import outliers, training_checks
+from cape.specs.study import StudySpec
 from cape.study.calibration import exclusion_rate, nested, t_over_draws
 from cape.study.claims import ClosedLoopClaim, Context, Pair, controllers
 from cape.study.grid import canonical, study_runs
@@ -294,7 +295,10 @@ def test_the_papers_study_runs_for_every_replicate_and_the_others_for_replicate_
         "truth": {"plants": ["truth"], "internal": ["epm", "truth"], "controllers": ["nmpc"],
                   "replicates": [0, 1]},
     }}  # fmt: skip
-    runs = study_runs(config, ["0"], lambda c: c == "nmpc", replicates=3)
+    spec = StudySpec.from_config(
+        {"study": config, "disturbances": {"eta": ["0"]}, "training": {"replicates": 3}}
+    )
+    runs = study_runs(spec, lambda c: c == "nmpc")
     learned = [r for r in runs if r.study == "learned"]
     assert sorted({r.replicate for r in learned}) == [0, 1, 2] and len(learned) == 6
     computed = canonical(runs)

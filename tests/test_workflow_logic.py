@@ -24,7 +24,7 @@ def _health(model: str, seed: int) -> str:
 
 @pytest.fixture(scope="module")
 def flow() -> StudyWorkflow:
-    return StudyWorkflow(load_config("config/config.yaml"), _outputs, _health)
+    return StudyWorkflow.from_config(load_config("config/config.yaml"), _outputs, _health)
 
 
 def _run(**fields: str) -> SimpleNamespace:

@@ -15,7 +15,7 @@ from cape.workflow.study import RUN_FOLDER, RUN_LOG, RUN_STEM, TABLE_EXTS
 from cape.workflow.study import StudyWorkflow, prepare, run_notebook
 
 prepare(config, workflow.is_main_process)
-W = StudyWorkflow(
+W = StudyWorkflow.from_config(
     config,
     # a target lists every file of a job: Snakemake rebuilds a deleted file only if asked for
     outputs=lambda rule, **wildcards: [str(p).format(**wildcards) for p in getattr(rules, rule).output],

@@ -4,12 +4,12 @@
 rule figure_tracks:
     input:
         W.track_files(),
-        data=[paths.dataset(t) for t in sorted(config["data"]["tracks"])],
+        data=[paths.dataset(t) for t in W.data_tracks],
     output:
         pdf=paths.figures("tracks_and_data.pdf"),
         png=paths.figures("tracks_and_data.png"),
     params:
-        data=" ".join(f"--data {shlex.quote(f'{t}={paths.dataset(t)}')}" for t in sorted(config["data"]["tracks"])),
+        data=" ".join(f"--data {shlex.quote(f'{t}={paths.dataset(t)}')}" for t in W.data_tracks),
         spec=lambda wildcards: job_spec("figure_tracks", specs.sections(config, "tracks", "data")),
     conda:
         CAPE_ENV

@@ -6,7 +6,7 @@ rule train:
     """One training of a model: its k-th has seed training.seed + k (SPEC §4). Whether it
     works is its health check's; which trainings become draws, the draw rule's."""
     input:
-        data=paths.dataset(config["data"]["train_track"]),
+        data=paths.dataset(W.train_track),
     output:
         weights=f"{paths.TRAINING}/{paths.WEIGHTS}",
         meta=f"{paths.TRAINING}/{paths.META}",
@@ -14,15 +14,13 @@ rule train:
     params:
         spec=lambda wildcards: job_spec("train", specs.training(config, wildcards.model, int(wildcards.training_seed))),
         out=lambda wildcards, output: os.path.dirname(output.weights),
-    threads: config["training"]["threads"]
-    # the longest training first (EPM's 3000 epochs are the study's critical path), and every
-    # training before any rollout
-    priority: lambda wildcards: 100 + int(config["models"][wildcards.model]["train"]["epochs"]) // 10
+    threads: W.threads
+    priority: lambda wildcards: W.training_priority(wildcards.model)
     resources:
         runtime=240,
         # how often the training writes its resumable checkpoint: a resource, not a param,
         # since it changes no result and so must not retrain a finished model
-        checkpoint_every=lambda wildcards: str(config["training"].get("checkpoint_every", 60)),
+        checkpoint_every=lambda wildcards: str(W.checkpoint_every),
     conda:
         CAPE_ENV
     log:
@@ -43,7 +41,7 @@ checkpoint training_health:
         weights=f"{paths.TRAINING}/{paths.WEIGHTS}",
         meta=f"{paths.TRAINING}/{paths.META}",
         losses=f"{paths.TRAINING}/{paths.LOSSES}",
-        data=paths.dataset(config["data"]["train_track"]),
+        data=paths.dataset(W.train_track),
     output:
         f"{paths.TRAINING}/{paths.HEALTH}",
     params:
@@ -88,7 +86,7 @@ rule freeze:
     input:
         weights=f"{paths.MODEL}/{paths.WEIGHTS}",
         meta=f"{paths.MODEL}/{paths.META}",
-        data=paths.dataset(config["data"]["train_track"]),
+        data=paths.dataset(W.train_track),
     output:
         f"{paths.MODEL}/{paths.FROZEN_PHI}",
     params:
@@ -125,8 +123,8 @@ rule export_network:
 rule openloop_table:
     input:
         models=lambda wildcards: W.trained_models(int(wildcards.replicate)),
-        train=paths.dataset(config["data"]["train_track"]),
-        test=paths.dataset(config["data"]["test_track"]),
+        train=paths.dataset(W.train_track),
+        test=paths.dataset(W.test_track),
     output:
         csv=f"{paths.REPLICATE_TABLES}/table04_openloop_rmse.csv",
         md=f"{paths.REPLICATE_TABLES}/table04_openloop_rmse.md",
@@ -148,7 +146,7 @@ rule openloop_table:
 rule complexity_table:
     input:
         models=lambda wildcards: W.trained_models(int(wildcards.replicate)),
-        test=paths.dataset(config["data"]["test_track"]),
+        test=paths.dataset(W.test_track),
     output:
         csv=f"{paths.REPLICATE_TABLES}/table01_model_complexity.csv",
         md=f"{paths.REPLICATE_TABLES}/table01_model_complexity.md",
@@ -170,7 +168,7 @@ rule complexity_table:
 rule figure_models:
     input:
         models=W.trained_models(),
-        test=paths.dataset(config["data"]["test_track"]),
+        test=paths.dataset(W.test_track),
     output:
         phi_pdf=paths.figures("model_phi_ethzmobil.pdf"),
         phi_png=paths.figures("model_phi_ethzmobil.png"),

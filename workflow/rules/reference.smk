@@ -11,7 +11,7 @@ rule raceline:
     params:
         spec=lambda wildcards: job_spec("raceline", specs.sections(config, "tracks", "reference")),
         # checked against the line's ideal lap before any run starts (a limit no lap can meet)
-        time_limit=config["rollout"]["time_limit"],
+        time_limit=W.time_limit,
     conda:
         CAPE_ENV
     log:

@@ -217,6 +217,7 @@ def snakefile() -> str:
 def cmd_question(args: argparse.Namespace) -> None:
     from cape.io import write_text
     from cape.ownership import Output
+    from cape.specs.study import StudySpec
     from cape.study import question_report as report
     from cape.study.leaderboard import recipe
     from cape.study.question import RowState, evaluate, later_seeds, next_draws
@@ -226,6 +227,7 @@ def cmd_question(args: argparse.Namespace) -> None:
     files = [*DEFAULT_FILES[: 1 if args.no_question_config else 2], *args.configfile]
     config = merged_config(files)
     settings = QuestionSettings.from_config(config, " + ".join(files))
+    study = StudySpec.from_config(config)
     design = settings.design()
     states = [RowState(row) for row in settings.rows()]
     logs = [Path(paths.QUESTION, "logs", f"stage{k + 1}.log") for k in range(len(settings.stages))]
@@ -251,7 +253,7 @@ def cmd_question(args: argparse.Namespace) -> None:
     )
     for k, n in enumerate(settings.stages):
         plan = Plan(draws, settings.stages[0], settings.seeds, seeds_later)
-        overrides = run_overrides(config, settings, plan)
+        overrides = run_overrides(study, settings, plan)
         stage_files = [*files, paths.QUESTION_STAGE]
         if args.dry_run:
             import yaml
@@ -271,9 +273,9 @@ def cmd_question(args: argparse.Namespace) -> None:
         tick = time.perf_counter()
         log = Path(paths.QUESTION, "logs", f"stage{k + 1}.log")
         _snakemake(stage_files, args.cores, extra, log, f"stage {k + 1}")
-        runs = report.read_stage_runs(config, settings, plan)
+        runs = report.read_stage_runs(settings, plan)
         evaluate(runs, states, design, k)
-        cost = report.costs(config, settings, plan)
+        cost = report.costs(settings, plan)
         if k == 0:
             ratio = cost.cost_ratio()
             if ratio is not None:
@@ -313,7 +315,7 @@ def cmd_question(args: argparse.Namespace) -> None:
                 seeds_said,
                 remaining,
                 walls,
-                {m: recipe(config["models"][m]) for m in settings.models},
+                {m: recipe(study.models[m]) for m in settings.models},
                 report.further_draw(cost, settings, seeds_later),
             ),
         )

@@ -46,26 +46,27 @@ def _aggregate_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_aggregate(args: argparse.Namespace) -> None:
     from cape.io import write_files
     from cape.ownership import Output
+    from cape.specs.study import StudySpec
     from cape.study.aggregate import collect_runs, summarise
     from cape.study.grid import study_grid
 
-    config = _config(args)
+    spec = StudySpec.from_config(_config(args))
     _claim(args, Output(Path(args.out), "table of runs", suffixes=(".parquet",)),
            Output(Path(args.summary), "summary of cells", suffixes=(".parquet",),
                   option="--summary"))  # fmt: skip
-    paths = [Path(p) for p in args.runs]
+    named = [Path(p) for p in args.runs]
     if args.runs_from:
-        paths += [Path(line) for line in Path(args.runs_from).read_text().split() if line]
+        named += [Path(line) for line in Path(args.runs_from).read_text().split() if line]
     pairs: list[tuple[Any, ...]]
-    if paths:  # the runs named, each of the study its metrics.json records
-        pairs = [(None, p) for p in paths]
+    if named:  # the runs named, each of the study its metrics.json records
+        pairs = [(None, p) for p in named]
     else:  # every run of the config's grid, read where it was computed
-        grid = study_grid(config)
+        grid = study_grid(spec)
         read = args.replicates
         pairs = [(run.study, computed.folder(args.root) / paths.METRICS, computed, run.replicate)
                  for run, computed in grid.items()
                  if read is None or run.replicate in read]  # fmt: skip
-    runs = collect_runs(pairs, config["study"]["studies"], args.models_root)
+    runs = collect_runs(pairs, spec.internal_studies(), args.models_root)
     summary = summarise(runs)
     # both tables or neither: a new runs.parquet never stands beside an old summary
     write_files(

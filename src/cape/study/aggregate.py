@@ -18,7 +18,7 @@ penalty, since a lap that ends succeeds before the limit and a failure counts as
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -129,26 +129,22 @@ def read_run(
 
 def collect_runs(
     runs: Iterable[tuple[Any, ...]],
-    studies: Mapping[str, Any],
+    varies_internal: Collection[str],
     models_root: str | Path | None = None,
 ) -> pd.DataFrame:
     """The tidy table of the given runs ((study, metrics.json[, the run it must hold[, the
     replicate that asks]]) tuples; a study of None: the one the run records), sorted by its keys;
     ``models_root``: check each run's trained networks against the models there.
     ``model`` names the model a run is about: the internal model in a study that varies it (the
-    ground-truth study), else the plant's; ``studies`` is the config's ``study.studies``."""
+    ground-truth study: ``varies_internal``, ``StudySpec.internal_studies``), else the
+    plant's."""
     current = CurrentModels(models_root) if models_root is not None else None
     rows = [read_run(Path(run[1]), run[0], *run[2:4], current=current) for run in runs]
     if not rows:
         raise CapeError("no runs to aggregate")
     frame = pd.DataFrame(rows)
-    varies_internal = frame["study"].map(  # the ground-truth study's kind, not the ablation's
-        lambda s: (
-            bool(studies.get(s, {}).get("internal"))
-            and studies.get(s, {}).get("kind", "closed_loop") != "ablation"
-        )
-    )
-    frame["model"] = frame["internal"].where(varies_internal, frame["plant"])
+    by_internal = frame["study"].isin(list(varies_internal))
+    frame["model"] = frame["internal"].where(by_internal, frame["plant"])
     first = [*KEYS, "model", "eta_label", "success", "failure", "steps"]
     frame = frame[first + [c for c in frame.columns if c not in first]]
     return frame.sort_values(KEYS, kind="stable").reset_index(drop=True)

@@ -9,40 +9,27 @@ both studies read it. The workflow's rules and ``cape aggregate`` both call ``st
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
-from typing import Any
+from collections.abc import Callable
 
 from cape.errors import CapeError
 from cape.layout.runs import RunId
+from cape.specs.study import StudySpec
 
 
-def study_replicates(grid: Mapping[str, Any], replicates: int) -> list[int]:
-    """The training replicates a study runs for: its ``replicates`` (``all``: 0 … R−1, a list:
-    those), default replicate 0 only (SPEC §8: the paper's study sets ``all``)."""
-    chosen = grid.get("replicates", [0])
-    return list(range(replicates)) if chosen == "all" else [int(r) for r in chosen]
-
-
-def study_runs(
-    study_config: Mapping[str, Any],
-    etas: list[str],
-    uses_internal: Callable[[str], bool],
-    replicates: int = 1,
-) -> list[RunId]:
-    """Every run of every study of the config's ``study`` section, in the config's order.
-    A controller with an internal model crosses the study's ``internal`` list (default: the
-    plant's own model); one without (PID, RISE) runs once per plant, named after the plant.
-    ``replicates``: the config's ``training.replicates`` (what ``replicates: all`` means)."""
+def study_runs(spec: StudySpec, uses_internal: Callable[[str], bool]) -> list[RunId]:
+    """Every run of every study of ``spec``, in the config's order. A controller with an
+    internal model crosses the study's ``internal`` list (default: the plant's own model); one
+    without (PID, RISE) runs once per plant, named after the plant."""
     runs = []
-    seeds = range(int(study_config["seeds"]))
-    for study, grid in study_config["studies"].items():
-        for replicate in study_replicates(grid, replicates):
-            for plant in grid["plants"]:
-                for controller in grid["controllers"]:
-                    own = [plant]
-                    internals = (grid.get("internal") or own) if uses_internal(controller) else own
+    seeds = range(spec.seeds)
+    for study, grid in spec.studies.items():
+        for replicate in grid.draws(spec.replicates):
+            for plant in grid.plants:
+                for controller in grid.controllers:
+                    own = (plant,)
+                    internals = (grid.internal or own) if uses_internal(controller) else own
                     for internal in internals:
-                        for eta in grid.get("eta", etas):
+                        for eta in spec.etas_of(grid):
                             for seed in seeds:
                                 runs.append(
                                     RunId(study, plant, internal, controller, eta, seed, replicate)
@@ -50,40 +37,28 @@ def study_runs(
     return runs
 
 
-def count_runs(
-    study_config: Mapping[str, Any],
-    etas: list[str],
-    uses_internal: Callable[[str], bool],
-    replicates: int = 1,
-) -> int:
+def count_runs(spec: StudySpec, uses_internal: Callable[[str], bool]) -> int:
     """How many runs ``study_runs`` would list, counted without listing them (a grid of a
     million seeds is refused by its count, before anything is built)."""
-    seeds = int(study_config["seeds"])
     total = 0
-    for grid in study_config["studies"].values():
+    for grid in spec.studies.values():
         per_plant = sum(
-            len(grid.get("internal") or [None]) if uses_internal(c) else 1
-            for c in grid["controllers"]
+            len(grid.internal or [None]) if uses_internal(c) else 1 for c in grid.controllers
         )
-        reps = len(study_replicates(grid, replicates))
-        total += reps * len(grid["plants"]) * per_plant * len(grid.get("eta", etas)) * seeds
+        reps = len(grid.draws(spec.replicates))
+        total += reps * len(grid.plants) * per_plant * len(spec.etas_of(grid)) * spec.seeds
     return total
 
 
 def check_grid_size(
-    study_config: Mapping[str, Any],
-    etas: list[str],
-    uses_internal: Callable[[str], bool],
-    source: str = "config",
-    replicates: int = 1,
+    spec: StudySpec, uses_internal: Callable[[str], bool], source: str = "config"
 ) -> int:
     """The grid's run count, or ``CapeError`` when it exceeds ``study.max_runs``."""
-    count = count_runs(study_config, etas, uses_internal, replicates)
-    limit = int(study_config.get("max_runs", 20000))
-    if count > limit:
+    count = count_runs(spec, uses_internal)
+    if count > spec.max_runs:
         raise CapeError(
             f"{source}: the grid of `study` expands to {count:,} runs, more than "
-            f"`study.max_runs` ({limit:,}); check `study.seeds` ({study_config['seeds']}) and "
+            f"`study.max_runs` ({spec.max_runs:,}); check `study.seeds` ({spec.seeds}) and "
             "the studies' lists, or raise `study.max_runs` if you mean it"
         )
     return count
@@ -96,23 +71,15 @@ def canonical(runs: list[RunId]) -> dict[RunId, RunId]:
     return {run: first.setdefault(run.same_run(), run) for run in runs}
 
 
-def study_grid(config: Mapping[str, Any], source: str = "config") -> dict[RunId, RunId]:
-    """Every run of ``config``'s grid → the run that computes it (``canonical``), in the
-    config's order; ``CapeError`` first when the grid exceeds ``study.max_runs``. Reads the
-    ``study`` section, ``disturbances.eta``, ``training.replicates`` and which of the
-    ``controllers`` predict with an internal model."""
-    from cape.config import section
+def study_grid(spec: StudySpec, source: str = "config") -> dict[RunId, RunId]:
+    """Every run of ``spec``'s grid → the run that computes it (``canonical``), in the
+    config's order; ``CapeError`` first when the grid exceeds ``study.max_runs``."""
     from cape.controllers import controller_class
 
-    controllers = section(config, "controllers")
-
     def uses_internal(name: str) -> bool:
-        if name not in controllers:
+        if name not in spec.controllers:
             raise CapeError(f"{source}: the grid names controller {name!r}, not in `controllers`")
-        return bool(controller_class(name, controllers[name]).needs_internal_model)
+        return bool(controller_class(name, spec.controllers[name]).needs_internal_model)
 
-    etas = list(section(config, "disturbances").get("eta", []))
-    replicates = int(section(config, "training").get("replicates", 1))
-    grid = section(config, "study")
-    check_grid_size(grid, etas, uses_internal, source, replicates)
-    return canonical(study_runs(grid, etas, uses_internal, replicates))
+    check_grid_size(spec, uses_internal, source)
+    return canonical(study_runs(spec, uses_internal))

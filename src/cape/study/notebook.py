@@ -21,6 +21,8 @@ from cape.layout import paths
 from cape.layout.record import read_series
 from cape.layout.runs import RunId
 from cape.plots.style import PNG_DPI, save_figure
+from cape.specs.notebook import NotebookSpec
+from cape.specs.study import StudySpec
 from cape.study.outputs import declared
 from cape.tables import number_formats, to_html, to_markdown, write_table
 
@@ -37,29 +39,24 @@ def enter_repository() -> None:
         os.chdir(Path.cwd().parent)
 
 
-def load_config(spec: str = "") -> dict[str, Any]:
-    """The sections of the job specification file papermill passed, else config/config.yaml."""
-    return config_from_args(None, None, spec or None)
+def load_spec(spec: str = "") -> NotebookSpec:
+    """The job specification file papermill passed, else config/config.yaml, typed."""
+    return NotebookSpec.from_config(config_from_args(None, None, spec or None))
 
 
-def controller_labels(config: Mapping[str, Any]) -> dict[str, str]:
-    return {name: str(entry.get("label", name)) for name, entry in config["controllers"].items()}
-
-
-def nothing_here(runs: pd.DataFrame, config: Mapping[str, Any], study: str) -> str:
+def nothing_here(runs: pd.DataFrame, study_spec: StudySpec | None, study: str) -> str:
     """Why this target holds no run of ``study`` to draw ('' when it holds some): a notebook
     with nothing to draw says so in each figure and table it writes (``nothing_to_draw``,
     ``nothing_table``) instead of failing inside Matplotlib."""
     if len(runs):
         return ""
-    grid = config["study"]["studies"].get(study)
+    grid = None if study_spec is None else study_spec.studies.get(study)
     if grid is None:
         return f"the config has no study {study!r}"
-    replicates = grid.get("replicates", [0])
     which = (
         "every training replicate"
-        if replicates == "all"
-        else "training replicate(s) " + ", ".join(str(r) for r in replicates)
+        if grid.replicates == "all"
+        else "training replicate(s) " + ", ".join(str(r) for r in grid.replicates)
     )
     return (
         f"this target holds no run of the {study} study, which runs for {which}; the default "

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 from cape.errors import CapeError
 from cape.layout.names import NMPCS, TRUTH
 from cape.layout.runs import RunId
+from cape.specs.study import StudySpec
 
 if TYPE_CHECKING:
     from cape.study.claims import ClosedLoopClaim, Pair
@@ -182,31 +183,29 @@ def stage_runs(settings: QuestionSettings, plan: Plan) -> list[RunId]:
     ]
 
 
-def run_overrides(config: Mapping[str, Any], settings: QuestionSettings, plan: Plan) -> dict:
+def run_overrides(study: StudySpec, settings: QuestionSettings, plan: Plan) -> dict:
     """The config a stage's Snakemake run merges over the user's: the ground-truth study runs
     every question model inside the NMPCs for up to the stage's draws; every other study keeps
     the draws it has (``all`` becomes the list it meant), so the grid grows by the question's
     runs alone; ``training.max_trainings`` is the last stage's in every stage (twice its draws,
     or a fixed cap grown in proportion); ``question.plan`` is the stage's."""
-    replicates = int(config["training"]["replicates"])
+    replicates = study.replicates
     studies: dict[str, Any] = {}
-    for name, grid in config["study"]["studies"].items():
+    for name, grid in study.studies.items():
         if name == settings.study:
-            internal = list(grid.get("internal") or [])
+            internal = list(grid.internal)
             internal += [m for m in settings.models if m not in internal]
-            controllers = list(grid["controllers"]) + [
-                c for c in NMPCS if c not in grid["controllers"]
-            ]
+            controllers = list(grid.controllers) + [c for c in NMPCS if c not in grid.controllers]
             studies[name] = {"internal": internal, "controllers": controllers, "replicates": "all"}
-        elif grid.get("replicates", [0]) == "all":
+        elif grid.replicates == "all":
             studies[name] = {"replicates": list(range(replicates))}
     most = max(replicates, *plan.draws.values())
     # one cap of trainings per model for every stage, the last stage's (2R by default, or the
     # fixed cap grown in proportion): a draw's cap never changes between stages, so no stage
     # redoes a draw another made (cape.models.draws.deciding_cap)
-    cap = config["training"].get("max_trainings")
+    cap = study.max_trainings
     last = max(most, settings.stages[-1])
-    cap = 2 * last if cap is None else max(int(cap), math.ceil(int(cap) * last / replicates))
+    cap = 2 * last if cap is None else max(cap, math.ceil(cap * last / replicates))
     training: dict[str, Any] = {"replicates": most, "max_trainings": cap}
     return {
         "training": training,

@@ -38,18 +38,15 @@ def draw_meta(model: str, replicate: int) -> dict[str, Any]:
     return read_json(path, "a draw's metadata", "delete the draw's folder and run again")
 
 
-def read_stage_runs(
-    config: Mapping[str, Any], settings: QuestionSettings, plan: Plan
-) -> pd.DataFrame:
+def read_stage_runs(settings: QuestionSettings, plan: Plan) -> pd.DataFrame:
     """The stage's runs (``cape.study.aggregate.collect_runs``, each checked against the
     networks of its draw), less those of a draw whose training failed (a model that reached
     its cap: the stand-in is no draw of its recipe)."""
     from cape.study.aggregate import collect_runs
 
-    studies = {settings.study: {"internal": list(settings.models)}}
     runs = stage_runs(settings, plan)
     pairs = [(run.study, run.folder() / paths.METRICS, None, run.replicate) for run in runs]
-    frame = collect_runs(pairs, studies, paths.MODELS)
+    frame = collect_runs(pairs, (settings.study,), paths.MODELS)
     untrained = {
         (m, r)
         for m, d in plan.draws.items()
@@ -120,7 +117,7 @@ def _cpu(path: Path) -> float | None:
     return value if math.isfinite(value) else float(row["s"])
 
 
-def costs(config: Mapping[str, Any], settings: QuestionSettings, plan: Plan) -> Cost:
+def costs(settings: QuestionSettings, plan: Plan) -> Cost:
     """What the question's draws and the stage's runs cost, from the rules' benchmark files
     (trainings, solvers: ``cpu_time``) and each run's timing.json (its phases' wall seconds,
     single-threaded: its CPU, near enough). A file not there is listed in ``missing``."""

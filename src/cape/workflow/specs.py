@@ -27,6 +27,24 @@ GRID_KEYS = ("replicates", "max_trainings")
 Config = Mapping[str, Any]
 
 
+def validate(config: Config, source: str) -> None:
+    """The config against its schema and cross-field rules (cape.config), each controller's
+    and disturbance source's own keys, and each model's module imported (it registers the
+    model); each problem one ``CapeError`` naming the key and the fix."""
+    from cape.closedloop.disturbances import validate_sources
+    from cape.config import validate_config
+    from cape.controllers import controller_class
+    from cape.controllers.base import validate_settings
+    from cape.models.registry import model_class
+
+    validate_config(config, source)
+    for name, entry in config["controllers"].items():
+        validate_settings(controller_class(name, entry), name, entry, source)
+    validate_sources(config["disturbances"], source)
+    for name, entry in config["models"].items():
+        model_class(name, entry)
+
+
 def spec_file(job: str, text: str) -> str:
     """The path of ``job``'s specification ``text``, written once (atomically) if absent."""
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]

@@ -11,14 +11,11 @@ from __future__ import annotations
 import shlex
 import sys
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from cape.bytecode import precompile_package
-from cape.closedloop.disturbances import validate_sources
-from cape.config import validate_config
 from cape.controllers import controller_class
-from cape.controllers.base import validate_settings
 from cape.layout import paths
 from cape.layout.names import TRUTH, PlantName, plant_names
 from cape.layout.runs import RunId
@@ -30,7 +27,7 @@ from cape.models.draws import (
     default_max_trainings,
     read_outcome,
 )
-from cape.models.registry import model_class
+from cape.specs.study import StudyGrid, StudySpec
 from cape.study.grid import study_grid
 from cape.study.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS, NotebookOutputs
 from cape.study.question_plan import Plan, QuestionSettings, stage_runs
@@ -54,45 +51,73 @@ Health = Callable[[str, int], str]
 def prepare(config: Mapping[str, Any], main_process: bool) -> None:
     """Before any rule: in the main process, remove the locks of runs proven ended
     (cape/locks.py) and write the package's bytecode once (cape/bytecode.py); everywhere,
-    validate the config, each controller's and disturbance source's own keys, and import
-    each model's module. Each problem is one message naming the key and the fix."""
+    validate the config (cape.workflow.specs.validate)."""
     if main_process:
         clear_stale_locks(".", report=lambda message: print(message, file=sys.stderr))
         precompile_package()
-    validate_config(config, SOURCE)
-    for name, entry in config["controllers"].items():
-        validate_settings(controller_class(name, entry), name, entry, SOURCE)
-    validate_sources(config["disturbances"], SOURCE)
-    for name, entry in config["models"].items():
-        model_class(name, entry)
+    specs.validate(config, SOURCE)
 
 
-@dataclass
+@dataclass(frozen=True)
 class StudyWorkflow:
-    """The grid of a validated ``config`` and everything the rules compute from it."""
+    """The grid of a validated config and everything the rules compute from it
+    (``from_config``)."""
 
     config: Mapping[str, Any]
+    """The validated config, for the job specifications (cape.workflow.specs) alone."""
+    study: StudySpec
+    grid: Mapping[RunId, RunId]
     outputs: Outputs
     health: Health
-    grid: dict[RunId, RunId] = field(init=False)
+    models: tuple[str, ...]
+    max_trainings: int
+    training_seed0: int
+    tracks: tuple[str, ...]
+    tracks_dir: str
+    data_tracks: tuple[str, ...]
+    train_track: str
+    test_track: str
+    reference_track: str
+    time_limit: float
+    threads: int
+    """Threads per training."""
+    checkpoint_every: float
+    """Seconds between a training's resumable checkpoints."""
+    plan: Mapping[str, Any] | None
+    """The question's current stage (``question.plan``, written by `cape question`)."""
 
-    def __post_init__(self) -> None:
-        self.grid = study_grid(self.config, SOURCE)
-
-    # --- the config's names ------------------------------------------------------------------
-    @property
-    def models(self) -> list[str]:
-        return list(self.config["models"])
+    @classmethod
+    def from_config(
+        cls, config: Mapping[str, Any], outputs: Outputs, health: Health
+    ) -> StudyWorkflow:
+        study = StudySpec.from_config(config)
+        training = config["training"]
+        cap = training.get("max_trainings")
+        return cls(
+            config=config,
+            study=study,
+            grid=study_grid(study, SOURCE),
+            outputs=outputs,
+            health=health,
+            models=tuple(config["models"]),
+            max_trainings=int(cap or default_max_trainings(study.replicates)),
+            training_seed0=int(training["seed"]),
+            tracks=tuple(sorted(config["tracks"]["catalogue"])),
+            tracks_dir=str(config["tracks"]["dir"]),
+            data_tracks=tuple(sorted(config["data"]["tracks"])),
+            train_track=str(config["data"]["train_track"]),
+            test_track=str(config["data"]["test_track"]),
+            reference_track=str(config["reference"]["track"]),
+            time_limit=config["rollout"]["time_limit"],
+            threads=int(training["threads"]),
+            checkpoint_every=training.get("checkpoint_every", 60),
+            plan=(config.get("question") or {}).get("plan"),
+        )
 
     @property
     def replicates(self) -> int:
         """Trained networks (draws) of every model (SPEC §4)."""
-        return int(self.config["training"]["replicates"])
-
-    @property
-    def max_trainings(self) -> int:
-        cap = self.config["training"].get("max_trainings")
-        return int(cap or default_max_trainings(self.replicates))
+        return self.study.replicates
 
     @property
     def scopes(self) -> dict[str, list[int]]:
@@ -101,19 +126,19 @@ class StudyWorkflow:
         return {paths.DEFAULT_SCOPE: [0], paths.REPLICATES_SCOPE: list(range(self.replicates))}
 
     @property
-    def studies(self) -> Mapping[str, Any]:
-        return self.config["study"]["studies"]
+    def studies(self) -> Mapping[str, StudyGrid]:
+        return self.study.studies
 
     def constraints(self) -> dict[str, str]:
         """The wildcards' patterns."""
         names = plant_names(self.models)
         return {
-            "track": "|".join(sorted(self.config["tracks"]["catalogue"])),
+            "track": "|".join(self.tracks),
             "model": "|".join(self.models),
             "study": "|".join(sorted(self.studies)),
             "plant": "|".join(names),
             "internal": "|".join(names),
-            "controller": "|".join(sorted(self.config["controllers"])),
+            "controller": "|".join(sorted(self.study.controllers)),
             "eta": r"[0-9]+(\.[0-9]+)?",
             "seed": r"[0-9]+",
             "training_seed": r"[0-9]+",
@@ -123,7 +148,7 @@ class StudyWorkflow:
 
     def studies_of_kind(self, kind: str) -> str:
         """A wildcard constraint: the studies of ``kind`` (a pattern matching none if none)."""
-        names = [s for s, grid in self.studies.items() if grid.get("kind", "closed_loop") == kind]
+        names = [s for s, grid in self.studies.items() if grid.kind == kind]
         return "|".join(names) or "(?!)"
 
     # --- job specifications ------------------------------------------------------------------
@@ -140,11 +165,16 @@ class StudyWorkflow:
     # --- the model stage ---------------------------------------------------------------------
     def track_files(self) -> list[str]:
         """The verified BayesRace files under the resources folder."""
-        return [f"{self.config['tracks']['dir']}/{name}" for name in BAYESRACE_FILES]
+        return [f"{self.tracks_dir}/{name}" for name in BAYESRACE_FILES]
 
     def training_seed(self, k: int) -> int:
         """A model's k-th training has seed ``training.seed + k`` (SPEC §4)."""
-        return int(self.config["training"]["seed"]) + int(k)
+        return self.training_seed0 + int(k)
+
+    def training_priority(self, model: str) -> int:
+        """The longest training first (EPM's 3000 epochs are the study's critical path), and
+        every training before any rollout."""
+        return 100 + int(self.study.models[model]["train"]["epochs"]) // 10
 
     def draw_choice(self, wildcards: Any) -> Choice:
         """Which training draw r of a model is, asked for in the order of cape.models.draws
@@ -206,16 +236,16 @@ class StudyWorkflow:
         return f"--training-data {shlex.quote(inputs.training_data)}"
 
     def raceline_path(self) -> str:
-        return paths.raceline(self.config["reference"]["track"])
+        return paths.raceline(self.reference_track)
 
     def uses_internal_model(self, controller: str) -> bool:
         """True for a controller that predicts with an internal model (the NMPCs)."""
-        entry = self.config["controllers"][controller]
+        entry = self.study.controllers[controller]
         return bool(controller_class(controller, entry).needs_internal_model)
 
     def compiles_solver(self, controller: str) -> bool:
         """True for a controller whose NLP is compiled to C (built once by the solver rule)."""
-        settings = self.config["controllers"][controller].get("compile") or {}
+        settings = self.study.controllers[controller].get("compile") or {}
         return self.uses_internal_model(controller) and bool(settings.get("enabled", False))
 
     @staticmethod
@@ -254,7 +284,7 @@ class StudyWorkflow:
             **self.model_inputs("plant", wildcards.plant, replicate),
         }
         if wildcards.plant != TRUTH:  # its states bound a learned plant (SPEC §5.3)
-            inputs["training_data"] = paths.dataset(self.config["data"]["train_track"])
+            inputs["training_data"] = paths.dataset(self.train_track)
         if self.uses_internal_model(wildcards.controller):
             inputs.update(self.model_inputs("internal", wildcards.internal, replicate))
         if self.compiles_solver(wildcards.controller):
@@ -365,17 +395,16 @@ class StudyWorkflow:
         scope = paths.DEFAULT_SCOPE
         targets = self.outputs("aggregate", scope=scope) + self.outputs("notebook_setup")
         for study, grid in self.studies.items():
-            kind = grid.get("kind", "closed_loop")
-            targets += self.outputs(f"notebook_{kind}", study=study)
+            targets += self.outputs(f"notebook_{grid.kind}", study=study)
             targets += self.outputs("notebook_failures", study=study)
-        if self.config["study"].get("paper") in self.studies:
+        if self.study.paper in self.studies:
             targets += self.outputs("notebook_scorecard", scope=scope)
         return targets
 
     def replicate_targets(self) -> list[str]:
         """The `replicates` target: every draw's models and the paper's study for each, with
         its scorecard under results/replicates/, and every file those are made from."""
-        if self.config["study"].get("paper") not in self.studies:
+        if self.study.paper not in self.studies:
             return []
         runs = self.computed_runs()
         return [
@@ -390,14 +419,13 @@ class StudyWorkflow:
     def all_targets(self) -> list[str]:
         """The default target: every file the workflow makes for draw 0."""
         runs = self.computed_runs({0})
-        tracks = sorted(self.config["data"]["tracks"])
         return [
             *self.outputs("tracks"),
-            *(path for t in tracks for path in self.outputs("dataset", track=t)),
+            *(path for t in self.data_tracks for path in self.outputs("dataset", track=t)),
             *self.outputs("figure_tracks"),
             *self.model_outputs([0]),
             *self.outputs("figure_models"),
-            *self.outputs("raceline", track=self.config["reference"]["track"]),
+            *self.outputs("raceline", track=self.reference_track),
             *self.solver_outputs(runs),
             *self.run_outputs(runs),
             *self.study_targets(),
@@ -405,11 +433,12 @@ class StudyWorkflow:
 
     def question_targets(self) -> list[str]:
         """Every file of the runs the question's current stage names, with their solvers."""
-        plan = (self.config.get("question") or {}).get("plan")
-        if not plan:
+        if not self.plan:
             return []
         settings = QuestionSettings.from_config(self.config, SOURCE)
-        runs = [self.grid.get(run, run) for run in stage_runs(settings, Plan.from_config(plan))]
+        runs = [
+            self.grid.get(run, run) for run in stage_runs(settings, Plan.from_config(self.plan))
+        ]
         return [*self.solver_outputs(runs), *self.run_outputs(runs)]
 
     def stale_summaries(self) -> list[str]:

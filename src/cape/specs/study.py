@@ -1,0 +1,99 @@
+"""What the study's grid and its summaries read: the studies, the seeds, η, the draws (SPEC §8)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any
+
+from cape.config import section
+
+
+@dataclass(frozen=True)
+class StudyGrid:
+    """One study of ``study.studies``: its plants × controllers (× internal models for a
+    controller with one) × η × seeds, for its draws."""
+
+    kind: str
+    plants: tuple[str, ...]
+    controllers: tuple[str, ...]
+    internal: tuple[str, ...]
+    """The NMPCs' internal models; empty: each plant's own model."""
+    eta: tuple[str, ...] | None
+    """Its η; None: ``disturbances.eta``."""
+    replicates: str | tuple[int, ...]
+    """``all`` (every draw) or the draws it runs for (default: draw 0)."""
+
+    @classmethod
+    def from_config(cls, entry: Mapping[str, Any]) -> StudyGrid:
+        chosen = entry.get("replicates", [0])
+        eta = entry.get("eta")
+        return cls(
+            kind=str(entry.get("kind", "closed_loop")),
+            plants=tuple(entry["plants"]),
+            controllers=tuple(entry["controllers"]),
+            internal=tuple(entry.get("internal") or ()),
+            eta=None if eta is None else tuple(eta),
+            replicates="all" if chosen == "all" else tuple(int(r) for r in chosen),
+        )
+
+    def draws(self, replicates: int) -> list[int]:
+        """The draws it runs for, given the config's ``training.replicates``."""
+        return list(range(replicates)) if self.replicates == "all" else list(self.replicates)
+
+
+@dataclass(frozen=True)
+class StudySpec:
+    """The ``study`` section with what gives it meaning: η, the number of draws, the
+    controllers' entries (which of them predict with an internal model) and the models."""
+
+    studies: Mapping[str, StudyGrid]
+    seeds: int
+    max_runs: int
+    paper: str | None
+    ground_truth: str | None
+    reference_model: str | None
+    primary_metric: str | None
+    etas: tuple[str, ...]
+    replicates: int
+    max_trainings: int | None
+    """``training.max_trainings``: None, the default cap (twice the draws)."""
+    controllers: Mapping[str, Mapping[str, Any]]
+    models: Mapping[str, Mapping[str, Any]]
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any]) -> StudySpec:
+        """From a validated config, or the sections a job reads: without ``disturbances``,
+        ``training``, ``controllers`` or ``models``, none of η, one draw, none of either."""
+        study = section(config, "study")
+        etas = (config.get("disturbances") or {}).get("eta", [])
+        training = config.get("training") or {}
+        cap = training.get("max_trainings")
+        return cls(
+            studies=MappingProxyType(
+                {name: StudyGrid.from_config(grid) for name, grid in study["studies"].items()}
+            ),
+            seeds=int(study["seeds"]),
+            max_runs=int(study.get("max_runs", 20000)),
+            paper=study.get("paper"),
+            ground_truth=study.get("ground_truth"),
+            reference_model=study.get("reference_model"),
+            primary_metric=study.get("primary_metric"),
+            etas=tuple(etas),
+            replicates=int(training.get("replicates", 1)),
+            max_trainings=None if cap is None else int(cap),
+            controllers=MappingProxyType(dict(config.get("controllers") or {})),
+            models=MappingProxyType(dict(config.get("models") or {})),
+        )
+
+    def internal_studies(self) -> tuple[str, ...]:
+        """The studies whose runs are about their internal model (the ground-truth study's
+        kind, not the ablation's, which varies both)."""
+        return tuple(
+            name for name, g in self.studies.items() if g.internal and g.kind != "ablation"
+        )
+
+    def etas_of(self, grid: StudyGrid) -> tuple[str, ...]:
+        """A study's η: its own, else the config's."""
+        return self.etas if grid.eta is None else grid.eta
