@@ -55,11 +55,9 @@ def _add_tracks_dir(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _tracks_dir(args: argparse.Namespace, config: dict[str, Any]) -> Path:
-    """``--tracks-dir``, else the config's ``tracks.dir``."""
-    from cape.config import section
-
-    return Path(args.tracks_dir or section(config, "tracks")["dir"])
+def _tracks_dir(args: argparse.Namespace, tracks: Any) -> Path:
+    """``--tracks-dir``, else the config's ``tracks.dir`` (``tracks``: a TracksSpec)."""
+    return Path(args.tracks_dir or tracks.dir)
 
 
 def _add_outputs(parser: argparse.ArgumentParser, flag: str, what: str) -> None:

@@ -34,13 +34,13 @@ def _tracks_arguments(p: argparse.ArgumentParser) -> None:
 
 @command("tracks", "obtain and verify the BayesRace track files (SPEC §2)", _tracks_arguments)
 def cmd_tracks(args: argparse.Namespace) -> None:
-    from cape.config import section
     from cape.ownership import Output, is_owner_record
+    from cape.specs.tracks import TracksSpec
     from cape.tracks.fetch import BAYESRACE_FILES, obtain_tracks
 
-    cfg = section(_config(args), "tracks")
-    mirror = args.mirror if args.mirror is not None else cfg.get("mirror")
-    dest = Path(args.dest or cfg["dir"])
+    spec = TracksSpec.from_config(_config(args))
+    mirror = args.mirror if args.mirror is not None else spec.mirror
+    dest = Path(args.dest or spec.dir)
 
     def tracks_only(folder: Path) -> str | None:  # a folder this command filled before
         held = [p for p in folder.iterdir() if not is_owner_record(p)]
@@ -53,8 +53,8 @@ def cmd_tracks(args: argparse.Namespace) -> None:
     obtain_tracks(
         dest=dest,
         mirror=Path(mirror) if mirror else None,
-        url_template=cfg["upstream_url"] if args.url is None else (args.url or None),
-        timeout=float(cfg.get("download_timeout", 30)),
+        url_template=spec.upstream_url if args.url is None else (args.url or None),
+        timeout=spec.download_timeout,
     )
     print(f"all track files verified in {dest}")
 
@@ -68,20 +68,19 @@ def _data_arguments(p: argparse.ArgumentParser) -> None:
 
 @command("data", "generate a DYN-PP data set by the BayesRace protocol (SPEC §3)", _data_arguments)
 def cmd_data(args: argparse.Namespace) -> None:
-    from cape.config import section
     from cape.data.bayesrace import ProtocolSettings, generate_dataset
     from cape.io import save_npz
     from cape.ownership import Output
+    from cape.specs.tracks import DataSpec
     from cape.tracks.track import load_raceline
     from cape.vehicle.params import GROUND_TRUTH
 
-    config = _config(args)
-    data_cfg = section(config, "data")
-    track_cfg = _entry(args.track, data_cfg["tracks"], "--track", "data.tracks")
+    spec = DataSpec.from_config(_config(args))
+    raceline_file = _entry(args.track, spec.racelines, "--track", "data.tracks")
     _claim(args, Output(Path(args.out), "data set", args.track, (".npz",)))
-    tracks_dir = _tracks_dir(args, config)
-    settings = ProtocolSettings.from_config(data_cfg, args.track)
-    raceline = load_raceline(tracks_dir, track_cfg["raceline"])
+    tracks_dir = _tracks_dir(args, spec.tracks)
+    settings = ProtocolSettings.from_config(spec.data, args.track)
+    raceline = load_raceline(tracks_dir, raceline_file)
     dataset = generate_dataset(raceline, GROUND_TRUTH, settings)
     save_npz(args.out, **dataset)
     print(f"wrote {args.out}: " + ", ".join(f"{k} {v.shape}" for k, v in dataset.items()))
@@ -104,16 +103,15 @@ def _plot_tracks_arguments(p: argparse.ArgumentParser) -> None:
     "plot-tracks", "figure of the tracks, racelines and generated data", _plot_tracks_arguments
 )
 def cmd_plot_tracks(args: argparse.Namespace) -> None:
-    from cape.config import section
     from cape.data.bayesrace import read_dataset
     from cape.plots.style import save_figure
     from cape.plots.tracks import TrackPanel, plot_tracks
+    from cape.specs.tracks import DataSpec
     from cape.tracks.track import load_raceline, load_track
 
-    config = _config(args)
-    catalogue = section(config, "tracks")["catalogue"]
-    data_tracks = section(config, "data")["tracks"]
-    tracks_dir = _tracks_dir(args, config)
+    spec = DataSpec.from_config(_config(args))
+    catalogue, data_tracks = spec.tracks.catalogue, spec.racelines
+    tracks_dir = _tracks_dir(args, spec.tracks)
     _claim(args, *_files(args.out, "figure of the tracks", FIGURE_SUFFIXES))
     panels, drawn = [], set()
     for item in args.data:
@@ -129,8 +127,8 @@ def cmd_plot_tracks(args: argparse.Namespace) -> None:
         dataset = read_dataset(path)
         panels.append(
             TrackPanel(
-                track=load_track(tracks_dir, name, entry["prefix"], entry["width"]),
-                raceline=load_raceline(tracks_dir, data_tracks[name]["raceline"]),
+                track=load_track(tracks_dir, name, entry.prefix, entry.width),
+                raceline=load_raceline(tracks_dir, data_tracks[name]),
                 dataset=dataset,
             )
         )
@@ -156,26 +154,24 @@ def _raceline_arguments(p: argparse.ArgumentParser) -> None:
 
 @command("raceline", "CAPE's minimum-curvature reference raceline (SPEC §2)", _raceline_arguments)
 def cmd_raceline(args: argparse.Namespace) -> None:
-
-    from cape.config import section
     from cape.integrity import sealed_arrays
     from cape.io import save_npz
     from cape.ownership import Output
     from cape.plots.style import save_figure
     from cape.plots.tracks import plot_raceline
+    from cape.specs.tracks import RacelineSpec
     from cape.tracks.raceline import build_raceline, lap_time
     from cape.tracks.reference import check_time_limit, ideal_lap_time
     from cape.tracks.track import load_raceline, load_track
     from cape.vehicle.params import ACTUATOR_LIMITS, GROUND_TRUTH
 
-    config = _config(args)
-    settings = section(config, "reference")
-    catalogue = section(config, "tracks")["catalogue"]
-    entry = _entry(args.track, catalogue, "--track", "tracks.catalogue")
+    spec = RacelineSpec.from_config(_config(args))
+    settings = spec.reference
+    entry = _entry(args.track, spec.tracks.catalogue, "--track", "tracks.catalogue")
     _claim(args, Output(Path(args.out), "raceline", args.track, (".npz",)),
            *_files(args.figure or [], "raceline figure", FIGURE_SUFFIXES, "--figure"))  # fmt: skip
-    tracks_dir = _tracks_dir(args, config)
-    track = load_track(tracks_dir, args.track, entry["prefix"], entry["width"])
+    tracks_dir = _tracks_dir(args, spec.tracks)
+    track = load_track(tracks_dir, args.track, entry.prefix, entry.width)
     line = build_raceline(track, settings, GROUND_TRUTH, ACTUATOR_LIMITS)
     path = line.path
     ideal = ideal_lap_time(path, line.speed, settings)
@@ -199,7 +195,7 @@ def cmd_raceline(args: argparse.Namespace) -> None:
     )
     print(title)
     if args.figure:
-        bayesrace = load_raceline(tracks_dir, f"{entry['prefix']}_raceline.npz")
+        bayesrace = load_raceline(tracks_dir, f"{entry.prefix}_raceline.npz")
         save_figure(
             plot_raceline(track, line.x, line.y, line.speed, bayesrace, title), *args.figure
         )

@@ -30,26 +30,11 @@ from cape.errors import CapeError
 from cape.layout import paths
 
 
-def _model_spec(config: dict[str, Any], name: str) -> dict[str, Any]:
-    from cape.config import section
+def _spec(args: argparse.Namespace) -> Any:
+    """The model commands' settings (``cape.specs.models.ModelsSpec``)."""
+    from cape.specs.models import ModelsSpec
 
-    models = section(config, "models")
-    if name not in models:
-        raise CapeError(
-            f"--model {name}: not in the config's `models` ({', '.join(sorted(models))})"
-        )
-    return models[name]
-
-
-def _colors_labels(
-    config: dict[str, Any], names: list[str]
-) -> tuple[dict[str, str], dict[str, str]]:
-    from cape.config import section
-
-    models = section(config, "models")
-    colors = {n: models.get(n, {}).get("color", f"C{i}") for i, n in enumerate(names)}
-    labels = {n: models.get(n, {}).get("label", n.upper()) for n in names}
-    return colors, labels
+    return ModelsSpec.from_config(_config(args))
 
 
 def _train_arguments(p: argparse.ArgumentParser) -> None:
@@ -79,13 +64,11 @@ def _train_arguments(p: argparse.ArgumentParser) -> None:
 
 @command("train", "train a learned model on the ETHZ windows (SPEC §4)", _train_arguments)
 def cmd_train(args: argparse.Namespace) -> None:
-    from cape.config import section
     from cape.models.kernels import pin_before_torch, pin_inductor
 
-    config = _config(args)
-    kernels = section(config, "training").get("kernels")
-    pin_before_torch(kernels)  # MKL's and ATen's code paths are read when PyTorch loads
-    pin_inductor(kernels)
+    settings = _spec(args)
+    pin_before_torch(settings.kernels)  # MKL's and ATen's code paths are read when PyTorch loads
+    pin_inductor(settings.kernels)
     from cape.models.checkpoint import save_model
     from cape.models.training_run import run_training
 
@@ -99,14 +82,14 @@ def cmd_train(args: argparse.Namespace) -> None:
     for option, (value, least) in counts.items():
         if value is not None and not (math.isfinite(value) and value >= least):  # NaN too
             raise CapeError(f"{option} {value}: give a number of at least {least}")
-    spec = _model_spec(config, args.model)
+    spec = settings.entry(args.model)
     out = Path(args.out)
     _claim(args, _model_output(out, args.model, args.replicate))  # before training
     run = run_training(
         args.model,
         spec,
-        section(config, "data"),
-        section(config, "training"),
+        settings.data,
+        settings.training,
         _read_dataset(args.data),
         Path(args.data),
         out,
@@ -157,7 +140,6 @@ def _check_training_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_check_training(args: argparse.Namespace) -> None:
     import json
 
-    from cape.config import section
     from cape.io import read_csv, write_text
     from cape.models.evaluate import one_step_rmse
     from cape.models.health import training_outcome
@@ -165,13 +147,13 @@ def cmd_check_training(args: argparse.Namespace) -> None:
     from cape.models.training import TrainingData
     from cape.ownership import Output
 
-    config = _config(args)
+    settings = _spec(args)
     _claim(args, Output(Path(args.out), "health record", args.model.partition("=")[0],
                         JSON_SUFFIXES))  # fmt: skip
     ((name, model),) = _load_models([args.model]).items()
     folder = Path(args.model.partition("=")[2])
     meta = read_meta(folder)
-    split = section(config, "data")["split"]
+    split = settings.split
     data = TrainingData.from_dataset(
         _read_dataset(args.data), model.history, float(split["train_fraction"]), int(split["seed"])
     )
@@ -187,7 +169,7 @@ def cmd_check_training(args: argparse.Namespace) -> None:
         int(meta["seed"]),
         one_step_rmse(model, data.val),
         losses["train_loss"].tolist(),
-        section(config, "training")["health"],
+        settings.health,
         str(meta["weights_sha256"]),
     )
     write_text(args.out, json.dumps(outcome.to_dict(), indent=2, sort_keys=True) + "\n")
@@ -289,7 +271,6 @@ def _freeze_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_freeze(args: argparse.Namespace) -> None:
     import json
 
-    from cape.config import section
     from cape.integrity import sealed_record
     from cape.io import write_text
     from cape.models.evaluate import frozen_parameters
@@ -297,8 +278,7 @@ def cmd_freeze(args: argparse.Namespace) -> None:
     from cape.models.training import TrainingData
     from cape.ownership import Output
 
-    config = _config(args)
-    split = section(config, "data")["split"]
+    split = _spec(args).split
     _claim(args, Output(Path(args.out), "frozen parameters", args.model.partition("=")[0],
                         JSON_SUFFIXES))  # fmt: skip
     ((name, model),) = _load_models([args.model]).items()
@@ -346,7 +326,7 @@ def cmd_export_network(args: argparse.Namespace) -> None:
     _claim(args, Output(target, "network", identity, (".npz",)))
     out = export_network(folder, target, expected_name=name)
     print(f"wrote {out}: the {name} network for the closed loop")
-    compile_settings = _config(args).get("rollout", {}).get("compile")
+    compile_settings = _spec(args).rollout_compile
     if compile_settings and compile_settings.get("enabled", False):
         import numpy as np
 
@@ -372,18 +352,15 @@ def _openloop_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_openloop(args: argparse.Namespace) -> None:
     import numpy as np
 
-    from cape.config import section
     from cape.models.evaluate import rear_slip
     from cape.models.report import openloop_table
     from cape.tables import write_table
 
-    config = _config(args)
+    settings = _spec(args)
     _claim(args, *_files(args.out, "open-loop error table", TABLE_SUFFIXES))
-    horizon = int(section(config, "training").get("multistep_horizon", 15))
+    horizon = settings.multistep_horizon
     train, test = _read_dataset(args.train_data), _read_dataset(args.test_data)
-    table = openloop_table(
-        _load_models(args.model), train, test, section(config, "data")["split"], horizon
-    )
+    table = openloop_table(_load_models(args.model), train, test, settings.split, horizon)
     slip_train, slip_test = rear_slip(train), rear_slip(test)
     caption = (
         "Open-loop error of the learned models: one-step RMSE on the ETHZ validation split and on "
@@ -419,18 +396,17 @@ def _complexity_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_complexity(args: argparse.Namespace) -> None:
     import torch
 
-    from cape.config import section
     from cape.data.windows import make_windows
     from cape.models.report import complexity_table
     from cape.tables import write_table
 
-    config = _config(args)
+    settings = _spec(args)
     _claim(args, *_files(args.out, "complexity table", TABLE_SUFFIXES))
     torch.set_num_threads(1)
     models = _load_models(args.model)
     data = _read_dataset(args.data)
     windows = {name: make_windows(data, m.history).features[100] for name, m in models.items()}
-    repeats = int(section(config, "training").get("inference_repeats", 2000))
+    repeats = settings.inference_repeats
     table = complexity_table(models, windows, repeats)
     formats = {"params_M": ".4f", "size_MB": ".2f", "flops_M": ".3f", "inference_ms": ".3f"}
     formats.update({f"paper_{k}": v for k, v in formats.items()})
@@ -460,7 +436,6 @@ def _plot_models_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_plot_models(args: argparse.Namespace) -> None:
     import numpy as np
 
-    from cape.config import section
     from cape.data.windows import make_windows
     from cape.models.evaluate import predict_phi
     from cape.models.trained import read_training
@@ -469,13 +444,13 @@ def cmd_plot_models(args: argparse.Namespace) -> None:
     from cape.vehicle.dynamics import drivetrain_force
     from cape.vehicle.params import GROUND_TRUTH
 
-    config = _config(args)
+    settings = _spec(args)
     figures = _files(args.phi_out, "figure of predicted Φ", FIGURE_SUFFIXES, "--phi-out")
     figures += _files(args.curves_out, "figure of training curves", FIGURE_SUFFIXES, "--curves-out")
     _claim(args, *figures)
-    ts = float(section(config, "data")["ts"])
+    ts = settings.ts
     models = _load_models(args.model)
-    colors, labels = _colors_labels(config, list(models))
+    colors, labels = settings.colors_labels(list(models))
     data = _read_dataset(args.data)
     phis, time = {}, None
     for name, model in models.items():
