@@ -7,7 +7,7 @@
   it, ``config/config.yaml`` with each ``--configfile`` merged over it as Snakemake's
   ``--configfile`` does (the smoke study: ``--configfile config/smoke.yaml``).
 - ``json_output(path, script)``: a ``--json PATH`` claimed through the project's write policy
-  (``cape.ownership``) before any work, written atomically.
+  (``cape.storage.ownership``) before any work, written atomically.
 
 Every path under ``results/`` comes from ``cape.layout.paths``, the workflow's own names,
 relative to the working folder: run the scripts from the study's folder.
@@ -35,8 +35,8 @@ def script_name() -> str:
 def run(main: Callable[[], int | None]) -> int:
     """``main()``'s exit status (0 when it returns None); a ``CapeError`` or ``OSError`` is
     one line on stderr and status 2, Ctrl-C one line and 130."""
-    from cape import ownership
     from cape.cli import told
+    from cape.storage import ownership
 
     succeeded = False
     try:
@@ -116,8 +116,8 @@ def json_output(path: Path | None, script: str, option: str = "--json") -> Itera
 ]:  # fmt: skip
     """Claim ``path`` (when given) as this script's results before any work; yields
     ``write(document)``, which writes it as JSON atomically (a no-op without a path)."""
-    from cape.io import write_text
-    from cape.ownership import Output, claimed
+    from cape.storage.io import write_text
+    from cape.storage.ownership import Output, claimed
 
     if path is None:
         yield lambda _document: None

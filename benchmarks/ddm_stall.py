@@ -43,10 +43,10 @@ from _common import add_config, run, study_config  # a sibling module
 from cape.config import section
 from cape.data.bayesrace import read_dataset
 from cape.errors import CapeError
-from cape.io import read_json
 from cape.layout import paths
 from cape.models.checkpoint import load_model
 from cape.models.training import TrainingData
+from cape.storage.io import read_json
 from cape.vehicle.params import GROUND_TRUTH
 
 

@@ -35,11 +35,11 @@ from typing import Any
 from _common import add_config, listed, run, study_config  # a sibling module
 
 from cape.errors import CapeError
-from cape.io import read_benchmark, read_json
 from cape.layout import paths
 from cape.layout.names import TRUTH
 from cape.layout.record import read_metrics, read_timing
 from cape.layout.runs import RunId
+from cape.storage.io import read_benchmark, read_json
 
 
 def cpu_of(path: Path) -> float:

@@ -33,7 +33,6 @@ import numpy as np
 import torch
 from _common import add_config, run, study_config  # a sibling module
 
-from cape.compiled import compiled_functions
 from cape.data.bayesrace import read_dataset
 from cape.data.windows import make_windows
 from cape.errors import CapeError
@@ -41,6 +40,7 @@ from cape.layout import paths as layout
 from cape.models.checkpoint import load_model
 from cape.models.network import NumpyNetwork
 from cape.models.training import build_model
+from cape.numerics.compiled import compiled_functions
 
 Predict = Callable[[np.ndarray], np.ndarray]
 

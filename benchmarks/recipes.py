@@ -33,9 +33,9 @@ from cape.config import section
 from cape.data.bayesrace import read_dataset
 from cape.data.windows import make_windows
 from cape.errors import CapeError
-from cape.io import read_benchmark
 from cape.layout import paths
 from cape.models.draws import read_outcome, reliability
+from cape.storage.io import read_benchmark
 
 
 def cpu_seconds(tsv: Path) -> float:

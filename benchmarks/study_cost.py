@@ -27,9 +27,9 @@ from typing import Any
 from _common import add_config, listed, run, study_config  # a sibling module
 
 from cape.errors import CapeError
-from cape.io import read_benchmark
 from cape.layout import paths
 from cape.layout.record import read_timing
+from cape.storage.io import read_benchmark
 
 PHASES = ("startup", "config", "build", "lap", "write")
 

@@ -13,7 +13,7 @@ from commands import cape, snakemake
 
 from cape.config import REPO_ROOT, load_config
 from cape.data.bayesrace import ProtocolSettings, generate_dataset
-from cape.integrity import sealed_arrays
+from cape.storage.integrity import sealed_arrays
 from cape.tracks.fetch import obtain_tracks
 from cape.tracks.raceline import build_raceline
 from cape.tracks.track import load_raceline, load_track

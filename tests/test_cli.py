@@ -23,7 +23,8 @@ def test_a_rollout_process_imports_neither_pytorch_nor_pandas() -> None:
     """Thousands of rollout jobs each start a process: what the closed loop and the NMPC
     import must stay light (PyTorch alone costs seconds to import)."""
     code = (
-        "import sys, cape.cli, cape.closedloop.setup, cape.controllers.registry as r, cape.io;"
+        "import sys, cape.cli, cape.closedloop.setup, cape.controllers.registry as r;"
+        "import cape.storage.io;"
         "[r.controller_class(n) for n in ('pid', 'rise', 'nmpc', 'anmpc', 'rnmpc')];"
         "import cape.models.network, cape.models.trained;"
         "import cape.layout.record;"
@@ -56,7 +57,7 @@ def test_data_command_writes_the_published_set(
     with np.load(out) as npz:
         assert sorted(npz.files) == sorted(["time", "states", "dstates", "inputs", "vrefs"])
         np.testing.assert_array_equal(npz["dstates"], datasets["ETHZMobil"]["dstates"])
-    # written atomically, no leftovers; its owner record beside it (cape.ownership)
+    # written atomically, no leftovers; its owner record beside it (cape.storage.ownership)
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([out.name, f".{out.name}.owner"])
 
 

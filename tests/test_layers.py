@@ -1,8 +1,8 @@
 """The code base's floors: no module imports a package above its own (docs/architecture.md).
 
 cli, workflow → study → plots → closedloop → controllers → models → data → tracks → vehicle →
-specs (what a job reads) → config, registry, compiled → layout (every name and path) → the
-bottom floor's helpers (errors, io, integrity, schemas, …): the order in which a run is built,
+specs (what a job reads) → config, registry, numerics → layout (every name and path) → the
+bottom floor: errors, storage (the write policy), schemas, …: the order in which a run is built,
 each floor using only the ones below.
 """
 
@@ -14,9 +14,8 @@ from pathlib import Path
 from cape.config import REPO_ROOT
 
 FLOORS = [
-    ("errors", "io", "ownership", "integrity", "buffered", "locks", "paper", "tables", "parquet",
-     "interrupt", "bytecode", "schemas"),
-    ("layout",), ("config", "registry", "compiled"), ("specs",), ("vehicle",), ("tracks",),
+    ("errors", "storage", "paper", "bytecode", "schemas"),
+    ("layout",), ("config", "registry", "numerics"), ("specs",), ("vehicle",), ("tracks",),
     ("data",), ("models",), ("controllers",), ("closedloop",), ("plots",), ("study",),
     ("cli", "workflow"),
 ]  # fmt: skip

@@ -13,8 +13,8 @@ import pytest
 from cape.closedloop.rollout import initial_state
 from cape.closedloop.setup import build_internal, build_run
 from cape.controllers.internal import N_STATE
-from cape.integrity import sealed_arrays
 from cape.specs.run import RunSpec
+from cape.storage.integrity import sealed_arrays
 
 
 @pytest.fixture(scope="session")

@@ -11,10 +11,10 @@ import pandas as pd
 import pytest
 
 from cape.config import REPO_ROOT
+from cape.storage.tables import to_html, to_markdown
 from cape.study.notebook import show_table
 from cape.study.notebook_html import HEADER, ShortParameters, short_parameters
 from cape.study.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS, figure_heading
-from cape.tables import to_html, to_markdown
 
 
 def _injected(config: dict) -> str:

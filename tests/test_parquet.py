@@ -1,4 +1,4 @@
-"""The minimal Parquet writer (cape.parquet) against the reference reader (pyarrow)."""
+"""The minimal Parquet writer (cape.storage.parquet) against the reference reader (pyarrow)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from cape.parquet import parquet_bytes
+from cape.storage.parquet import parquet_bytes
 
 
 def test_pyarrow_reads_back_every_value_and_name() -> None:

@@ -16,8 +16,8 @@ from cape.closedloop.plants import TruthPlant
 from cape.closedloop.rollout import initial_state, run_lap
 from cape.controllers import controller_class
 from cape.controllers.base import Controller
-from cape.integrity import sealed_arrays
 from cape.layout.record import write_run_files, write_timing
+from cape.storage.integrity import sealed_arrays
 from cape.tracks.raceline import build_raceline
 from cape.tracks.reference import ReferenceLine
 from cape.tracks.track import load_track

@@ -621,7 +621,7 @@ def _fake_lock(directory: Path) -> Path:
 def _record(directory: Path, **changes) -> Path:
     from dataclasses import asdict, replace
 
-    from cape.locks import RECORDS, Process
+    from cape.storage.locks import RECORDS, Process
 
     me = Process.me()
     assert me is not None
@@ -633,7 +633,7 @@ def _record(directory: Path, **changes) -> Path:
 
 
 def test_locks_of_a_run_that_has_ended_are_removed(tmp_path: Path) -> None:
-    from cape.locks import _start_time, clear_stale_locks
+    from cape.storage.locks import _start_time, clear_stale_locks
 
     ended = subprocess.Popen(["sleep", "0"])
     started = _start_time(ended.pid)
@@ -654,7 +654,7 @@ def test_locks_of_a_run_that_has_ended_are_removed(tmp_path: Path) -> None:
     ],
 )
 def test_locks_that_may_belong_to_a_living_run_are_left(tmp_path: Path, changes, why) -> None:
-    from cape.locks import clear_stale_locks
+    from cape.storage.locks import clear_stale_locks
 
     lock = _fake_lock(tmp_path)
     if changes is not None:

@@ -7,7 +7,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from cape.tables import to_latex, to_markdown, write_table
+from cape.storage.tables import to_latex, to_markdown, write_table
 
 
 def test_markdown_and_latex_formats() -> None:

@@ -18,12 +18,12 @@ import pytest
 import yaml
 
 from cape.cli import main
-from cape.compiled import cached_functions, compiled_functions
 from cape.config import REPO_ROOT, check_consistency
 from cape.controllers import controller_class
 from cape.controllers.base import validate_settings
 from cape.errors import CapeError
-from cape.integrity import sealed_arrays, sealed_record
+from cape.numerics.compiled import cached_functions, compiled_functions
+from cape.storage.integrity import sealed_arrays, sealed_record
 
 TS = 0.02
 

@@ -69,7 +69,7 @@ def test_a_run_never_replaces_another_runs_folder(setup: dict, tmp_path: Path) -
 
 def test_two_writers_of_one_output_cannot_both_win(setup: dict, tmp_path: Path) -> None:
     """Another writer holds the output (its owner record locked): refused at once."""
-    from cape.ownership import owner_record
+    from cape.storage.ownership import owner_record
 
     out = tmp_path / "run"
     record = owner_record(out)
@@ -191,7 +191,7 @@ def test_a_bad_value_in_config_json_is_one_line(setup: dict, tmp_path: Path) -> 
 def test_the_policy_module_runs_without_the_cli(tmp_path: Path) -> None:
     """``claimed`` for scripts: the record is written, and a failure leaves nothing."""
     code = (
-        "import sys; from pathlib import Path; from cape.ownership import Output, claimed\n"
+        "import sys; from pathlib import Path; from cape.storage.ownership import Output, claimed\n"
         f"out = Path({str(tmp_path / 'x.json')!r})\n"
         "try:\n"
         "    with claimed([Output(out, 'thing', suffixes=('.json',))], 'test'):\n"
@@ -203,14 +203,14 @@ def test_the_policy_module_runs_without_the_cli(tmp_path: Path) -> None:
     assert done.stdout.strip() == "[]", done.stderr
 
 
-# --- the policy's own corners (cape.ownership, in process) ------------------------------------
+# --- the policy's own corners (cape.storage.ownership, in process) ----------------------------
 def test_a_model_folder_is_the_models_only_by_its_owner_record(tmp_path: Path) -> None:
     """Snakemake deletes a training's model.pt, meta.json and loss.csv before it reruns it; the
     folder, with what other rules or a killed training left, stays the training's by its owner
     record. A folder of files without one is refused in one line that says what to do."""
     from cape.cli.models import _model_output
     from cape.errors import CapeError
-    from cape.ownership import claimed
+    from cape.storage.ownership import claimed
 
     folder = tmp_path / "seed0"
     with claimed([_model_output(folder, "dpm", None)], "test"):
@@ -232,7 +232,7 @@ def test_a_model_folder_is_the_models_only_by_its_owner_record(tmp_path: Path) -
 
 def test_a_refusal_of_one_output_changes_no_other(tmp_path: Path) -> None:
     from cape.errors import CapeError
-    from cape.ownership import Output, claimed
+    from cape.storage.ownership import Output, claimed
 
     (tmp_path / "b.md").write_text("mine")
     outs = [Output(tmp_path / "a.md", "table"), Output(tmp_path / "b.md", "table", option="-o")]
@@ -242,7 +242,7 @@ def test_a_refusal_of_one_output_changes_no_other(tmp_path: Path) -> None:
 
 
 def test_a_failure_leaves_no_empty_folder_and_no_record(tmp_path: Path) -> None:
-    from cape.ownership import Output, claimed
+    from cape.storage.ownership import Output, claimed
 
     out = tmp_path / "new" / "deeper" / "run"
     with pytest.raises(RuntimeError), claimed([Output(out, "run", "x", folder=True)], "test"):
@@ -253,7 +253,7 @@ def test_a_failure_leaves_no_empty_folder_and_no_record(tmp_path: Path) -> None:
 
 def test_an_owner_record_is_never_followed_through_a_link(tmp_path: Path) -> None:
     from cape.errors import CapeError
-    from cape.ownership import Output, claimed, owner_record
+    from cape.storage.ownership import Output, claimed, owner_record
 
     victim = tmp_path / "victim.txt"
     victim.write_text("keep")
@@ -268,7 +268,7 @@ def test_an_owner_record_is_never_followed_through_a_link(tmp_path: Path) -> Non
 
 def test_a_forked_worker_does_not_keep_the_lock(tmp_path: Path) -> None:
     from cape.controllers.guard import Guarded
-    from cape.ownership import Output, claim, release
+    from cape.storage.ownership import Output, claim, release
 
     out = [Output(tmp_path / "run", "run", "x", folder=True)]
     claim(out, "test")
@@ -285,7 +285,7 @@ def test_a_file_system_without_locks_still_gets_its_outputs(tmp_path: Path, monk
     import errno
     import fcntl
 
-    from cape.ownership import Output, claimed, owner_record
+    from cape.storage.ownership import Output, claimed, owner_record
 
     def no_locks(_fd: int, _op: int) -> None:
         raise OSError(errno.ENOLCK, "No locks available")

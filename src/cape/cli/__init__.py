@@ -16,10 +16,10 @@ import threading
 from collections.abc import Sequence
 from typing import NoReturn
 
-from cape import interrupt
 from cape.cli import data, models, question, runs, study  # noqa: F401  (they register their commands)
 from cape.cli.common import COMMANDS, STARTED
 from cape.errors import CapeError, one_line
+from cape.numerics import interrupt
 
 __all__ = ["STARTED", "build_parser", "main"]
 
@@ -56,7 +56,7 @@ class Interrupted(BaseException):
 
 def _terminated(signum: int, _frame: object) -> None:
     interrupt.requested.append(Interrupted(signum))
-    if not interrupt.deferring():  # within a lap the loop raises it (cape.interrupt)
+    if not interrupt.deferring():  # within a lap the loop raises it (cape.numerics.interrupt)
         raise interrupt.requested[-1]
 
 
@@ -96,13 +96,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run one subcommand. A ``CapeError`` or a failed read or write (a full disk) becomes a
     one-line message and exit status 2; Ctrl-C and SIGTERM a one-line message and 130 or 143.
     Every output is written atomically, so none of these leaves a half-written file."""
-    from cape import ownership
+    from cape.storage import ownership
 
     args = build_parser().parse_args(argv)
     succeeded = False
     main_thread = threading.current_thread() is threading.main_thread()
     previous = {}
-    if main_thread:  # raise, and remember for the loop (cape.interrupt: IPOPT swallows it)
+    if main_thread:  # raise, and remember for the loop (cape.numerics.interrupt: IPOPT swallows it)
         previous[signal.SIGTERM] = signal.signal(signal.SIGTERM, _terminated)
         previous[signal.SIGINT] = signal.signal(signal.SIGINT, _interrupted)
     try:

@@ -130,16 +130,17 @@ JSON_SUFFIXES = (".json",)
 
 
 def _claim(args: argparse.Namespace, *outputs: Any) -> None:
-    """Claim this command's outputs (``cape.ownership``) before any work: each refused with one
-    line unless it is new or this command's own earlier output; held until the command ends."""
-    from cape import ownership
+    """Claim this command's outputs (``cape.storage.ownership``) before any work: each refused
+    with one line unless it is new or this command's own earlier output; held until the command
+    ends."""
+    from cape.storage import ownership
 
     ownership.claim(outputs, f"cape {args.command}")
 
 
 def _files(paths: list[str], kind: str, suffixes: tuple[str, ...], option: str = "--out") -> list:
     """The ``ownership.Output`` of each file of a repeatable output flag."""
-    from cape.ownership import Output
+    from cape.storage.ownership import Output
 
     return [Output(Path(p), kind, suffixes=suffixes, option=option) for p in paths]
 

@@ -34,8 +34,8 @@ def _tracks_arguments(p: argparse.ArgumentParser) -> None:
 
 @command("tracks", "obtain and verify the BayesRace track files (SPEC §2)", _tracks_arguments)
 def cmd_tracks(args: argparse.Namespace) -> None:
-    from cape.ownership import Output, is_owner_record
     from cape.specs.tracks import TracksSpec
+    from cape.storage.ownership import Output, is_owner_record
     from cape.tracks.fetch import BAYESRACE_FILES, obtain_tracks
 
     spec = TracksSpec.from_config(_config(args))
@@ -69,9 +69,9 @@ def _data_arguments(p: argparse.ArgumentParser) -> None:
 @command("data", "generate a DYN-PP data set by the BayesRace protocol (SPEC §3)", _data_arguments)
 def cmd_data(args: argparse.Namespace) -> None:
     from cape.data.bayesrace import ProtocolSettings, generate_dataset
-    from cape.io import save_npz
-    from cape.ownership import Output
     from cape.specs.tracks import DataSpec
+    from cape.storage.io import save_npz
+    from cape.storage.ownership import Output
     from cape.tracks.track import load_raceline
     from cape.vehicle.params import GROUND_TRUTH
 
@@ -154,12 +154,12 @@ def _raceline_arguments(p: argparse.ArgumentParser) -> None:
 
 @command("raceline", "CAPE's minimum-curvature reference raceline (SPEC §2)", _raceline_arguments)
 def cmd_raceline(args: argparse.Namespace) -> None:
-    from cape.integrity import sealed_arrays
-    from cape.io import save_npz
-    from cape.ownership import Output
     from cape.plots.style import save_figure
     from cape.plots.tracks import plot_raceline
     from cape.specs.tracks import RacelineSpec
+    from cape.storage.integrity import sealed_arrays
+    from cape.storage.io import save_npz
+    from cape.storage.ownership import Output
     from cape.tracks.raceline import build_raceline, lap_time
     from cape.tracks.reference import check_time_limit, ideal_lap_time
     from cape.tracks.track import load_raceline, load_track

@@ -112,9 +112,10 @@ def cmd_train(args: argparse.Namespace) -> None:
 
 
 def _model_output(out: Path, model: str, replicate: int | None) -> Any:
-    """A model folder as an output (``cape.ownership``): a trained ``model`` of ``replicate``
-    (None: a training that is no draw), as ``cape train`` and ``cape draw`` write it."""
-    from cape.ownership import Output
+    """A model folder as an output (``cape.storage.ownership``): a trained ``model`` of
+    ``replicate`` (None: a training that is no draw), as ``cape train`` and ``cape draw`` write
+    it."""
+    from cape.storage.ownership import Output
 
     return Output(out, "trained model", _model_identity(model, replicate), folder=True)
 
@@ -140,12 +141,12 @@ def _check_training_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_check_training(args: argparse.Namespace) -> None:
     import json
 
-    from cape.io import read_csv, write_text
     from cape.models.evaluate import one_step_rmse
     from cape.models.health import training_outcome
     from cape.models.trained import read_meta
     from cape.models.training import TrainingData
-    from cape.ownership import Output
+    from cape.storage.io import read_csv, write_text
+    from cape.storage.ownership import Output
 
     settings = _spec(args)
     _claim(args, Output(Path(args.out), "health record", args.model.partition("=")[0],
@@ -202,9 +203,9 @@ def cmd_draw(args: argparse.Namespace) -> None:
     import hashlib
     import json
 
-    from cape.io import write_files
     from cape.models.draws import Outcome, choose_training, read_outcome
     from cape.models.trained import read_meta
+    from cape.storage.io import write_files
 
     if args.replicate < 0 or args.max_trainings < 1:
         raise CapeError("--replicate is at least 0 and --max-trainings at least 1")
@@ -271,12 +272,12 @@ def _freeze_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_freeze(args: argparse.Namespace) -> None:
     import json
 
-    from cape.integrity import sealed_record
-    from cape.io import write_text
     from cape.models.evaluate import frozen_parameters
     from cape.models.trained import read_meta
     from cape.models.training import TrainingData
-    from cape.ownership import Output
+    from cape.storage.integrity import sealed_record
+    from cape.storage.io import write_text
+    from cape.storage.ownership import Output
 
     split = _spec(args).split
     _claim(args, Output(Path(args.out), "frozen parameters", args.model.partition("=")[0],
@@ -318,7 +319,7 @@ def cmd_export_network(args: argparse.Namespace) -> None:
         )
     from cape.closedloop.provenance import model_replicate
     from cape.models.trained import read_meta
-    from cape.ownership import Output
+    from cape.storage.ownership import Output
 
     meta = read_meta(folder)
     target = Path(args.out) if args.out else Path(folder) / paths.NETWORK
@@ -354,7 +355,7 @@ def cmd_openloop(args: argparse.Namespace) -> None:
 
     from cape.models.evaluate import rear_slip
     from cape.models.report import openloop_table
-    from cape.tables import write_table
+    from cape.storage.tables import write_table
 
     settings = _spec(args)
     _claim(args, *_files(args.out, "open-loop error table", TABLE_SUFFIXES))
@@ -398,7 +399,7 @@ def cmd_complexity(args: argparse.Namespace) -> None:
 
     from cape.data.windows import make_windows
     from cape.models.report import complexity_table
-    from cape.tables import write_table
+    from cape.storage.tables import write_table
 
     settings = _spec(args)
     _claim(args, *_files(args.out, "complexity table", TABLE_SUFFIXES))

@@ -215,9 +215,9 @@ def snakefile() -> str:
     _arguments,
 )
 def cmd_question(args: argparse.Namespace) -> None:
-    from cape.io import write_text
-    from cape.ownership import Output
     from cape.specs.study import StudySpec
+    from cape.storage.io import write_text
+    from cape.storage.ownership import Output
     from cape.study import question_report as report
     from cape.study.leaderboard import recipe
     from cape.study.question import RowState, evaluate, later_seeds, next_draws

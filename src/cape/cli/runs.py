@@ -48,9 +48,9 @@ def cmd_build_solver(args: argparse.Namespace) -> None:
     import json
 
     from cape.closedloop.setup import build_run
-    from cape.io import write_text
-    from cape.ownership import Output
     from cape.specs.run import RunSpec
+    from cape.storage.io import write_text
+    from cape.storage.ownership import Output
 
     spec = RunSpec.from_config(_config(args), args.controller)
     identity = f"{args.controller} with internal model {args.internal}"
@@ -110,10 +110,10 @@ def _rollout_arguments(p: argparse.ArgumentParser) -> None:
 @command("rollout", "one closed-loop lap: plant, controller, η, seed (SPEC §5)", _rollout_arguments)
 def cmd_rollout(args: argparse.Namespace) -> None:
     from cape.closedloop.job import check_run, run_job
-    from cape.io import atomic_folder, check_replaceable
     from cape.layout.record import write_run_files, write_timing
     from cape.layout.runs import RUN_FILES, RunId
     from cape.specs.run import RunSpec
+    from cape.storage.io import atomic_folder, check_replaceable
 
     imported = time.perf_counter()
     spec = RunSpec.from_config(_config(args), args.controller)
@@ -145,8 +145,8 @@ def cmd_rollout(args: argparse.Namespace) -> None:
 
 
 def _run_output(out: Path, run: Any) -> Any:
-    """A run folder as an output (``cape.ownership``): the run ``run``."""
-    from cape.ownership import Output
+    """A run folder as an output (``cape.storage.ownership``): the run ``run``."""
+    from cape.storage.ownership import Output
 
     return Output(out, "run", "/".join(run.parts()), folder=True)
 

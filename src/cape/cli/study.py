@@ -44,9 +44,9 @@ def _aggregate_arguments(p: argparse.ArgumentParser) -> None:
     _aggregate_arguments,
 )
 def cmd_aggregate(args: argparse.Namespace) -> None:
-    from cape.io import write_files
-    from cape.ownership import Output
     from cape.specs.study import StudySpec
+    from cape.storage.io import write_files
+    from cape.storage.ownership import Output
     from cape.study.aggregate import collect_runs, summarise
     from cape.study.grid import study_grid
 

@@ -43,7 +43,7 @@ class Envelope:
         digest of the data the plant's model was trained on (its meta.json), which ``path``
         must be: a plant is bounded by its own training data, never another track's."""
         from cape.data.bayesrace import read_dataset
-        from cape.integrity import file_digest
+        from cape.storage.integrity import file_digest
 
         if not Path(path).is_file():
             raise CapeError(

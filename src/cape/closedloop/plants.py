@@ -20,10 +20,10 @@ from typing import Any, Protocol
 import casadi as ca
 import numpy as np
 
-from cape.buffered import BufferedCall
-from cape.compiled import serialized_function, source_digest
 from cape.models.physics import ModelPhysics
 from cape.models.trained import TrainedModel
+from cape.numerics.buffered import BufferedCall
+from cape.numerics.compiled import serialized_function, source_digest
 from cape.vehicle.backend import ops_for
 from cape.vehicle.dynamics import state_derivative
 from cape.vehicle.integrators import rk4_step
@@ -156,7 +156,7 @@ class TruthPlant:
         cache: dict[str, Any] | None = None,
     ) -> None:
         """``cache``: the ``rollout.compile`` settings, whose cache keeps the built function
-        (``cape.compiled.serialized_function``: the same function, without building it)."""
+        (``cape.numerics.compiled.serialized_function``: the same function, without building it)."""
         self.ts = ts
         self.params = (transform or _identity)(params)
         self.x = np.zeros(6)

@@ -15,11 +15,11 @@ from typing import Any
 
 import numpy as np
 
-from cape import interrupt
 from cape.closedloop.disturbances import DisturbancePipeline
 from cape.closedloop.envelope import Envelope, divergence_record
 from cape.closedloop.plants import Plant
 from cape.controllers.base import Controller
+from cape.numerics import interrupt
 from cape.tracks.geometry import cross_track_error, wrap_angle
 from cape.tracks.reference import ProgressTracker, ReferenceLine
 from cape.tracks.track import Track
@@ -93,7 +93,7 @@ def run_lap(
     last_pose = x[:2].copy()
     diverged: tuple[int, np.ndarray] | None = None
     centre_s = track.center.project(x[0], x[1]).s
-    # signals are raised by the loop's own check, never inside a solver (cape.interrupt)
+    # signals are raised by the loop's own check, never inside a solver (cape.numerics.interrupt)
     with interrupt.deferred():
         for k in range(max_steps):
             ref = line.points(proj_seen.s, horizon)

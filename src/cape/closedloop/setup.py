@@ -23,12 +23,12 @@ from cape.controllers.base import Controller, validate_settings
 from cape.controllers.ekf import NoiseLevels
 from cape.controllers.internal import InternalModel, fixed_internal
 from cape.errors import CapeError
-from cape.integrity import check_arrays, check_record
 from cape.layout import paths
 from cape.layout.names import PlantName, truth_structure
 from cape.models.registry import model_class
 from cape.models.trained import TrainedModel, load_physics, load_trained, read_meta
 from cape.specs.run import ReferenceSpec, RunSpec
+from cape.storage.integrity import check_arrays, check_record
 from cape.tracks import native
 from cape.tracks.reference import ReferenceLine, check_time_limit
 from cape.tracks.track import Track, load_raceline, load_track

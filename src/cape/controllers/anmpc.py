@@ -9,7 +9,7 @@ nominal values and the difference is added to that force (``InternalModel.correc
 
 The loss and its finite differences are one CasADi function built with the NLP, so an update
 costs one call, not 4·``every`` model steps in Python; it is cached serialised beside the
-compiled solvers (``cape.compiled.serialized_function``), so a job loads it instead of
+compiled solvers (``cape.numerics.compiled.serialized_function``), so a job loads it instead of
 building its 4·``every`` model steps.
 """
 
@@ -23,11 +23,11 @@ from typing import Any, ClassVar
 import casadi as ca
 import numpy as np
 
-from cape.compiled import serialized_function, source_digest
 from cape.controllers.base import require
 from cape.controllers.internal import N_STATE
 from cape.controllers.nmpc import NMPC_SCHEMA, NominalNMPC
 from cape.controllers.registry import register_controller
+from cape.numerics.compiled import serialized_function, source_digest
 from cape.tracks.geometry import Projection
 from cape.tracks.reference import ReferencePoints
 

@@ -26,7 +26,6 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from cape.compiled import source_digest
 from cape.controllers import shooting, stagewise
 from cape.controllers.base import GAINS, Controller, PIDLoop, require
 from cape.controllers.internal import N_STATE
@@ -41,6 +40,7 @@ from cape.controllers.shooting import (
 from cape.controllers.solvers import OCPSolver, RescuableSolver, RescueSolver
 from cape.controllers.sqp import CondensedSQP
 from cape.errors import CapeError
+from cape.numerics.compiled import source_digest
 from cape.tracks.geometry import Projection
 from cape.tracks.reference import ReferencePoints
 

@@ -21,8 +21,8 @@ from typing import Any, ClassVar
 import casadi as ca
 import numpy as np
 
-from cape.compiled import source_digest
 from cape.controllers.internal import N_STATE, InternalModel
+from cape.numerics.compiled import source_digest
 from cape.tracks.reference import ReferenceLine, ReferencePoints
 from cape.tracks.track import Track
 

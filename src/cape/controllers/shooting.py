@@ -15,8 +15,8 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from cape.compiled import make_nlpsol
 from cape.controllers.sqp import SolveStats
+from cape.numerics.compiled import make_nlpsol
 
 N_INPUT = 2
 

@@ -44,7 +44,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from cape.compiled import cached_functions, compiled_functions
+from cape.numerics.compiled import cached_functions, compiled_functions
 
 N_INPUT = 2
 PREFIX = "ocp"

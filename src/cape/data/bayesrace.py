@@ -29,7 +29,7 @@ DATASET_KEYS = ("time", "states", "dstates", "inputs", "vrefs")
 def read_dataset(path: str | Path) -> dict[str, np.ndarray]:
     """A DYN-PP data set as ``cape data`` writes it, or ``CapeError`` naming the file, what is
     wrong (not an .npz, an array missing, of another shape, or not finite) and the fix."""
-    from cape.io import read_npz
+    from cape.storage.io import read_npz
 
     fix = f"give a data set `cape data` wrote (snakemake --cores 2 {paths.dataset('ETHZ')})"
     what = "a DYN-PP data set"

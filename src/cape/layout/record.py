@@ -31,11 +31,11 @@ import numpy as np
 
 from cape import schemas
 from cape.errors import CapeError
-from cape.integrity import check_record, sealed_record
-from cape.io import write_bytes
 from cape.layout import paths
 from cape.layout.runs import RunId
-from cape.parquet import parquet_bytes
+from cape.storage.integrity import check_record, sealed_record
+from cape.storage.io import write_bytes
+from cape.storage.parquet import parquet_bytes
 
 SERIES_KEY = "series_sha256"
 
@@ -44,10 +44,10 @@ def write_run_files(
     folder: Path, metrics: Mapping[str, Any], series: Mapping[str, np.ndarray]
 ) -> str:
     """``timeseries.parquet`` and ``metrics.json`` (sealed) into ``folder`` (the temporary
-    folder of ``cape.io.atomic_folder``); returns the series' digest, which ``write_timing``
+    folder of ``cape.storage.io.atomic_folder``); returns the series' digest, which ``write_timing``
     records. The series holds the per-step solve times, wall-clock numbers, so its digest
     goes with the timing, and ``metrics.json`` stays byte-identical across reruns."""
-    data = parquet_bytes(series)  # cape.parquet: no pyarrow to import in every rollout job
+    data = parquet_bytes(series)  # cape.storage.parquet: no pyarrow to import in every rollout job
     write_bytes(folder / paths.SERIES, data)
     text = json.dumps(sealed_record(metrics), indent=2, sort_keys=True) + "\n"
     write_bytes(folder / paths.METRICS, text.encode())

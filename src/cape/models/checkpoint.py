@@ -19,11 +19,11 @@ import numpy as np
 import torch
 
 from cape.errors import CapeError
-from cape.io import write_files
 from cape.layout import paths
 from cape.models.base import LearnedModel
 from cape.models.network import save_network
 from cape.models.trained import FORMAT_VERSION, load_physics, read_meta
+from cape.storage.io import write_files
 
 
 def save_model(
@@ -33,7 +33,7 @@ def save_model(
     extra: Mapping[str, bytes] | None = None,
 ) -> None:
     """Write ``model.pt``, ``meta.json`` and the ``extra`` files (name → content) into
-    ``folder``, all or none (``cape.io.write_files``: new weights never stand beside an old
+    ``folder``, all or none (``cape.storage.io.write_files``: new weights never stand beside an old
     ``meta.json``)."""
     folder = Path(folder)
     buffer = io.BytesIO()

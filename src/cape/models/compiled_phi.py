@@ -22,8 +22,8 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from cape.compiled import cached_library, generated
 from cape.models.trunk import Layer
+from cape.numerics.compiled import cached_library, generated
 
 LANES = 8
 """float32 lanes of one vector: rows of the weights are padded with zeros to a multiple."""

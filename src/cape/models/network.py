@@ -27,13 +27,13 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from cape.buffered import BufferedCall
 from cape.errors import CapeError
-from cape.integrity import check_arrays, sealed_arrays
-from cape.io import save_npz
 from cape.models.compiled_phi import FRONT, compiled_phi
 from cape.models.physics import N_FEATURES
 from cape.models.trunk import KINDS, Layer
+from cape.numerics.buffered import BufferedCall
+from cape.storage.integrity import check_arrays, sealed_arrays
+from cape.storage.io import save_npz
 
 Array = np.ndarray
 NETWORK_FORMAT = 1

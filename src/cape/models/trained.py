@@ -15,10 +15,10 @@ from typing import Any, Protocol
 import numpy as np
 
 from cape.errors import CapeError
-from cape.io import read_csv
 from cape.layout import paths
 from cape.models.physics import ModelPhysics
 from cape.models.registry import build_physics
+from cape.storage.io import read_csv
 
 FORMAT_VERSION = 1
 """Version of ``meta.json``'s layout."""

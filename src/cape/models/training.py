@@ -24,9 +24,9 @@ from tqdm import tqdm
 
 from cape.data.windows import StandardScaler, WindowSet, make_windows, split_indices
 from cape.errors import CapeError
-from cape.io import write_bytes
 from cape.models.base import LearnedModel
 from cape.models.registry import build_physics
+from cape.storage.io import write_bytes
 
 TRAINING_STEP = 2
 """Version of the training step's arithmetic (1: the batch loss eager around a compiled

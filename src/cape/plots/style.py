@@ -17,7 +17,7 @@ matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt
 
-from cape.io import write_files
+from cape.storage.io import write_files
 
 PNG_DPI = 200
 """Resolution of every saved figure's raster copy (the PDF is vector)."""
@@ -25,7 +25,7 @@ PNG_DPI = 200
 
 def save_figure(fig: plt.Figure, *paths: str | Path, dpi: int = PNG_DPI) -> None:
     """Save ``fig`` to each path (format from the suffix), all files or none
-    (``cape.io.write_files``)."""
+    (``cape.storage.io.write_files``)."""
     rendered = {}
     for path in paths:
         buffer = io.BytesIO()

@@ -27,11 +27,11 @@ import pandas as pd
 from scipy import stats
 
 from cape.errors import CapeError
-from cape.integrity import KEY
 from cape.layout import paths
 from cape.layout.names import TRUTH
 from cape.layout.record import read_metrics, read_timing, verify_series
 from cape.layout.runs import RunId
+from cape.storage.integrity import KEY
 
 KEYS = ["study", "replicate", "plant", "internal", "controller", "eta", "seed"]
 CELL = ["study", "replicate", "model", "plant", "internal", "controller", "eta", "eta_label"]

@@ -12,11 +12,11 @@ from collections.abc import Sequence
 import pandas as pd
 
 from cape.layout import paths
+from cape.storage.tables import number_formats, to_markdown
 from cape.study.claims import GROUND_TRUTH
 from cape.study.scorecard import NOT_EVALUATED, draws_of, holds_for_every_network, presented
 from cape.study.tables import plant_failures
 from cape.study.verdicts import CONTRADICTED, EQUIVALENT, HOLDS, INCONCLUSIVE
-from cape.tables import number_formats, to_markdown
 
 REPLICATES_COMMAND = "snakemake --cores 2 replicates"
 

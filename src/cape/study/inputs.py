@@ -10,8 +10,8 @@ from typing import Any
 import pandas as pd
 
 from cape.errors import CapeError
-from cape.io import read_csv
 from cape.layout import paths
+from cape.storage.io import read_csv
 
 
 def read_replicate_tables(

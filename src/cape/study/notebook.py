@@ -23,8 +23,8 @@ from cape.layout.runs import RunId
 from cape.plots.style import PNG_DPI, save_figure
 from cape.specs.notebook import NotebookSpec
 from cape.specs.study import StudySpec
+from cape.storage.tables import number_formats, to_html, to_markdown, write_table
 from cape.study.outputs import declared
-from cape.tables import number_formats, to_html, to_markdown, write_table
 
 SCREEN_DPI = 100
 """CSS pixels per figure inch at which a notebook shows a figure: matplotlib's own screen

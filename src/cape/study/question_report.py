@@ -30,7 +30,7 @@ DECISIONS = (HOLDS, CONTRADICTED, EQUIVALENT, INCONCLUSIVE, OPEN)
 
 def draw_meta(model: str, replicate: int) -> dict[str, Any]:
     """A draw's meta.json (``cape draw`` wrote it), or {} where there is none yet."""
-    from cape.io import read_json
+    from cape.storage.io import read_json
 
     path = Path(paths.model_dir(model, replicate), paths.META)
     if not path.is_file():
@@ -105,7 +105,7 @@ class Cost:
 
 
 def _cpu(path: Path) -> float | None:
-    from cape.io import read_benchmark
+    from cape.storage.io import read_benchmark
 
     if not path.is_file():
         return None

@@ -12,7 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from cape.errors import CapeError
-from cape.io import write_bytes
+from cape.storage.io import write_bytes
 from cape.tracks.manifest import BAYESRACE_FILES, UPSTREAM_COMMIT
 
 

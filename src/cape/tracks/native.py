@@ -54,7 +54,7 @@ class ProjectionKernel:
 
 def compile_kernel(settings: Mapping[str, Any]) -> Path | None:
     """The kernel's library in the cache (compiled when missing), or None without a compiler."""
-    from cape.compiled import _compiled
+    from cape.numerics.compiled import _compiled
 
     compiler = str(settings.get("compiler", "gcc"))
     if shutil.which(compiler) is None:

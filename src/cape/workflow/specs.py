@@ -14,9 +14,9 @@ from pathlib import Path
 from typing import Any
 
 from cape.config import PRESENTATION_KEYS
-from cape.io import write_text
 from cape.layout import paths
 from cape.layout.names import models_read
+from cape.storage.io import write_text
 
 RUN_ONLY_KEYS = ("plant_envelope", "failure_window")
 """Rollout settings that judge or bound a run, which no controller's NLP reads."""

@@ -19,7 +19,6 @@ from cape.controllers import controller_class
 from cape.layout import paths
 from cape.layout.names import TRUTH, PlantName, plant_names
 from cape.layout.runs import RunId
-from cape.locks import clear_stale_locks
 from cape.models.draws import (
     Choice,
     choose_training,
@@ -28,6 +27,7 @@ from cape.models.draws import (
     read_outcome,
 )
 from cape.specs.study import StudyGrid, StudySpec
+from cape.storage.locks import clear_stale_locks
 from cape.study.grid import study_grid
 from cape.study.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS, NotebookOutputs
 from cape.study.question_plan import Plan, QuestionSettings, stage_runs
@@ -50,7 +50,7 @@ Health = Callable[[str, int], str]
 
 def prepare(config: Mapping[str, Any], main_process: bool) -> None:
     """Before any rule: in the main process, remove the locks of runs proven ended
-    (cape/locks.py) and write the package's bytecode once (cape/bytecode.py); everywhere,
+    (cape/storage/locks.py) and write the package's bytecode once (cape/bytecode.py); everywhere,
     validate the config (cape.workflow.specs.validate)."""
     if main_process:
         clear_stale_locks(".", report=lambda message: print(message, file=sys.stderr))

@@ -14,7 +14,7 @@ from typing import Any
 
 import pandas as pd
 
-from cape.io import write_files
+from cape.storage.io import write_files
 
 Formatter = Callable[[Any], str]
 
@@ -102,7 +102,7 @@ def write_table(
     csv_only: Sequence[str] = (),
 ) -> None:
     """Write ``frame`` to each path, the format chosen by its suffix (.csv, .md, .tex): all
-    or none (``cape.io.write_files``). ``csv_only``: columns for programs, not for readers
+    or none (``cape.storage.io.write_files``). ``csv_only``: columns for programs, not for readers
     (e.g. a model's weights digest), left out of the .md and .tex copies."""
     texts: dict[str | Path, bytes] = {}
     shown = frame.drop(columns=[c for c in csv_only if c in frame.columns])

@@ -24,9 +24,9 @@ from typing import Any
 import casadi as ca
 
 from cape.errors import CapeError
-from cape.integrity import check_sidecar, file_digest, sidecar
-from cape.io import write_text
 from cape.layout.paths import SOLVERS
+from cape.storage.integrity import check_sidecar, file_digest, sidecar
+from cape.storage.io import write_text
 
 _warned = False
 
