@@ -3,7 +3,7 @@ parsing its arguments and writing the run's folder.
 
 ``run_job`` checks the names, records which trained networks the run uses
 (``cape.closedloop.provenance``), assembles the run (``cape.closedloop.setup``), drives the lap
-and returns a ``RunRecord``: the metrics (byte-reproducible: ``metrics.json``), the timing
+and returns a ``RunFiles``: the metrics (byte-reproducible: ``metrics.json``), the timing
 (wall-clock numbers: ``timing.json``) and the time series. The job's phases are timed from
 ``started``, the moment the process began.
 """
@@ -28,7 +28,7 @@ from cape.specs.run import RunSpec
 
 
 @dataclass
-class RunRecord:
+class RunFiles:
     """A finished run: ``metrics.json``'s content, ``timing.json``'s (less the writing, which
     the writer times: ``finish_timing``) and the series."""
 
@@ -76,7 +76,7 @@ def run_job(
     envelope_data: str | None,
     started: float,
     imported: float,
-) -> RunRecord:
+) -> RunFiles:
     """Run ``run`` (checked by ``check_run``) with ``spec``'s settings and the trained models
     in ``folders``. ``internal``: the controller's internal model as asked for (None: the
     plant's own; the record names the one used); ``validate``: check the controller's settings
@@ -120,7 +120,7 @@ def run_job(
     }
     timing = job_timing(result, metrics, phases)
     timing["envelope_data"] = assembled.envelope_source  # what bounded the plant (None: none)
-    return RunRecord(metrics, timing, result.series, lapped)
+    return RunFiles(metrics, timing, result.series, lapped)
 
 
 def job_timing(result: Any, metrics: Mapping[str, Any], phases: Mapping[str, float]) -> dict:
@@ -140,7 +140,7 @@ def job_timing(result: Any, metrics: Mapping[str, Any], phases: Mapping[str, flo
         "controller": round(float(np.sum(ms)) / 1e3, 4),
         "plant": round(result.plant_s, 4),
         "steps": int(metrics["steps"]),
-        "write": 0.0,  # RunRecord.finish_timing
+        "write": 0.0,  # RunFiles.finish_timing
     }
     timing["controller_s"] = {k: round(v, 4) for k, v in sorted(result.controller_s.items())}
     timing["rescues"] = {

@@ -31,7 +31,7 @@ the controller's: cape.closedloop.envelope)."""
 
 
 @dataclass
-class RolloutResult:
+class LapResult:
     """What a run produced: the summary metrics and the full time series (one row per step)."""
 
     metrics: dict[str, Any]
@@ -66,7 +66,7 @@ def run_lap(
     penalty: dict[str, float],
     failure_window: float = 0.5,
     envelope: Envelope | None = None,
-) -> RolloutResult:
+) -> LapResult:
     """Drive one lap; never raises for a failed run (the failure, its reason and where it
     happened are recorded: see ``failure_location``). ``envelope``: a learned plant's, whose
     state beyond it (or non-finite) ends the run as ``plant_diverged`` before the
@@ -161,7 +161,7 @@ def run_lap(
     metrics.update(
         failure_location(failure, car.total, line.length, last_pose, fallback_steps, window)
     )
-    return RolloutResult(
+    return LapResult(
         metrics,
         series,
         np.asarray(solve_ms),

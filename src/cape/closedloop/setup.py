@@ -16,7 +16,7 @@ import numpy as np
 from cape.closedloop.disturbances import DisturbancePipeline
 from cape.closedloop.envelope import Envelope
 from cape.closedloop.plants import FixedParameterPlant, LearnedPlant, Plant, TruthPlant
-from cape.closedloop.rollout import RolloutResult, run_lap
+from cape.closedloop.rollout import LapResult, run_lap
 from cape.config import checked_once
 from cape.controllers import controller_class
 from cape.controllers.base import Controller, validate_settings
@@ -131,7 +131,7 @@ def build_internal(
 
 
 @dataclass
-class Run:
+class AssembledRun:
     """An assembled run: call it to drive the lap."""
 
     plant: Plant
@@ -144,7 +144,7 @@ class Run:
     envelope: Envelope | None = None
     envelope_source: dict[str, str] | None = None  # the training data set: path and digest
 
-    def __call__(self) -> RolloutResult:
+    def __call__(self) -> LapResult:
         s = self.spec
         return run_lap(
             self.plant,
@@ -171,7 +171,7 @@ def build_run(
     raceline: str | None = None,
     validate: bool = True,
     envelope_data: str | None = None,
-) -> Run:
+) -> AssembledRun:
     """Everything one run of ``spec``'s controller needs, from names; errors name the missing
     piece and the fix. ``models_dir``: where the trained models' folders are (a root, or a
     ``ModelFolders``). ``validate``: check the controller's settings against its schema
@@ -239,7 +239,7 @@ def build_run(
         actuator_delay=disturbances.steering_delay(ts),  # SPEC §7.1: the latency, never η
         **extra,
     )
-    return Run(
+    return AssembledRun(
         plant=plant,
         controller=controller,
         line=line,
