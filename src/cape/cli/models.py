@@ -200,60 +200,23 @@ def _draw_arguments(p: argparse.ArgumentParser) -> None:
     _draw_arguments,
 )
 def cmd_draw(args: argparse.Namespace) -> None:
-    import hashlib
-    import json
-
-    from cape.models.draws import Outcome, choose_training, read_outcome
-    from cape.models.trained import read_meta
+    from cape.models.draws import make_draw
     from cape.storage.io import write_files
 
     if args.replicate < 0 or args.max_trainings < 1:
         raise CapeError("--replicate is at least 0 and --max-trainings at least 1")
     out = Path(args.out)
     _claim(args, _model_output(out, args.model, args.replicate))
-    trainings = [Path(t) for t in args.training]
-
-    def outcome(k: int) -> Outcome:
-        if k >= len(trainings):
-            raise CapeError(
-                f"draw {args.replicate} of {args.model} needs training {k}'s health, but only "
-                f"{len(trainings)} --training folders were given"
-            )
-        return read_outcome(trainings[k] / paths.HEALTH)
-
-    choice = choose_training(args.replicate, args.max_trainings, outcome)
-    source = trainings[choice.index]
-    meta = read_meta(source)
-    weights = (source / paths.WEIGHTS).read_bytes()
-    digest = hashlib.sha256(weights).hexdigest()
-    health = choice.consulted[choice.index]
-    if meta.get("name") != args.model or digest != meta.get("weights_sha256"):
-        raise CapeError(
-            f"{source}: holds no {args.model} training whose weights match its meta.json"
-        )
-    if health.weights_sha256 != digest:
-        raise CapeError(
-            f"{source}/{paths.HEALTH}: is about other weights than {source}/{paths.WEIGHTS}; "
-            "delete it and rerun snakemake"
-        )
-    meta["replicate"] = args.replicate
-    meta["draw"] = {
-        "training": str(source),
-        "index": choice.index,
-        "trained": choice.trained,
-        "cap_reached": choice.cap_reached,
-        "max_trainings": args.max_trainings,
-        "trainings": [o.to_dict() for o in choice.consulted],
-    }
-    write_files({
-        out / paths.WEIGHTS: weights,
-        out / paths.LOSSES: (source / paths.LOSSES).read_bytes(),
-        out / paths.META: (json.dumps(meta, indent=2, sort_keys=True) + "\n").encode(),
-    })  # fmt: skip
+    draw = make_draw(
+        args.model, args.replicate, args.max_trainings, [Path(t) for t in args.training]
+    )
+    write_files({out / name: content for name, content in draw.files.items()})
+    choice = draw.choice
     said = "trained" if choice.trained else "failed (the cap was reached)"
     print(
-        f"{args.model} draw {args.replicate}: training {choice.index} (seed {health.seed}), "
-        f"{said}; {len(choice.consulted)} trainings consulted"
+        f"{args.model} draw {args.replicate}: training {choice.index} "
+        f"(seed {choice.consulted[choice.index].seed}), {said}; "
+        f"{len(choice.consulted)} trainings consulted"
     )
 
 

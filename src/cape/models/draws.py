@@ -15,6 +15,7 @@ training that could be this draw's, so that draw r's first question is training 
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from collections.abc import Callable, Mapping, Sequence
@@ -23,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from cape.errors import CapeError
+from cape.layout import paths
 
 HEALTH_FORMAT = 1
 
@@ -162,3 +164,56 @@ def reliability(outcomes: Sequence[Outcome], level: float = 0.95) -> Reliability
 
     ci = binomtest(failed, tried).proportion_ci(confidence_level=level, method="exact")
     return Reliability(tried, failed, failed / tried, float(ci.low), float(ci.high))
+
+
+@dataclass(frozen=True)
+class Draw:
+    """Draw r of a model: which training it is (``choice``) and its folder's files by name
+    (the training's weights and loss curve, its metadata with the draw recorded)."""
+
+    choice: Choice
+    files: Mapping[str, bytes]
+
+
+def make_draw(model: str, replicate: int, max_trainings: int, trainings: Sequence[Path]) -> Draw:
+    """Draw ``replicate`` of ``model`` from its ``trainings`` folders in seed order (SPEC §4):
+    the (r + 1)-th that works, or the cap's stand-in; ``CapeError`` when a training it must
+    consult is not given, or a folder's weights, metadata and health disagree."""
+    from cape.models.trained import read_meta
+
+    def outcome(k: int) -> Outcome:
+        if k >= len(trainings):
+            raise CapeError(
+                f"draw {replicate} of {model} needs training {k}'s health, but only "
+                f"{len(trainings)} --training folders were given"
+            )
+        return read_outcome(Path(trainings[k]) / paths.HEALTH)
+
+    choice = choose_training(replicate, max_trainings, outcome)
+    source = Path(trainings[choice.index])
+    meta = read_meta(source)
+    weights = (source / paths.WEIGHTS).read_bytes()
+    digest = hashlib.sha256(weights).hexdigest()
+    health = choice.consulted[choice.index]
+    if meta.get("name") != model or digest != meta.get("weights_sha256"):
+        raise CapeError(f"{source}: holds no {model} training whose weights match its meta.json")
+    if health.weights_sha256 != digest:
+        raise CapeError(
+            f"{source}/{paths.HEALTH}: is about other weights than {source}/{paths.WEIGHTS}; "
+            "delete it and rerun snakemake"
+        )
+    meta["replicate"] = replicate
+    meta["draw"] = {
+        "training": str(source),
+        "index": choice.index,
+        "trained": choice.trained,
+        "cap_reached": choice.cap_reached,
+        "max_trainings": max_trainings,
+        "trainings": [o.to_dict() for o in choice.consulted],
+    }
+    files = {
+        paths.WEIGHTS: weights,
+        paths.LOSSES: (source / paths.LOSSES).read_bytes(),
+        paths.META: (json.dumps(meta, indent=2, sort_keys=True) + "\n").encode(),
+    }
+    return Draw(choice, files)
