@@ -4,6 +4,7 @@ real `snakemake` dry run of every notebook job of the smoke study."""
 
 from __future__ import annotations
 
+import json
 import shlex
 import subprocess
 from pathlib import Path
@@ -14,9 +15,10 @@ import yaml
 from cape.config import REPO_ROOT
 
 
-def notebook_jobs(dry_run: str) -> dict[str, tuple[list[str], dict[str, str]]]:
+def notebook_jobs(dry_run: str, work: Path = Path()) -> dict[str, tuple[list[str], dict[str, str]]]:
     """Each notebook job of a `snakemake -n -p` listing → (its inputs other than the notebook
-    itself, its papermill parameters ``-r NAME VALUE``), keyed by the executed notebook."""
+    itself, its papermill parameters: ``-r NAME VALUE`` and those of a ``-f FILE``, the job's
+    specification the dry run wrote under ``work``), keyed by the executed notebook."""
     jobs = {}
     for block in dry_run.split("\nrule notebook_")[1:]:
         lines = block.splitlines()
@@ -26,6 +28,8 @@ def notebook_jobs(dry_run: str) -> dict[str, tuple[list[str], dict[str, str]]]:
         words = shlex.split(command.split("papermill", 1)[1].split(" > ", 1)[0])
         notebook, executed = words[0], words[1].removesuffix(".part.ipynb")
         parameters = {words[i + 1]: words[i + 2] for i, w in enumerate(words) if w == "-r"}
+        for i in (i for i, w in enumerate(words) if w == "-f"):
+            parameters.update(json.loads((work / words[i + 1]).read_text()))
         jobs[executed] = ([f for f in files if f != notebook], parameters)
     return jobs
 
@@ -60,7 +64,7 @@ def test_a_missing_parameter_is_found() -> None:
 
 
 @pytest.fixture(scope="module")
-def dry_run(tmp_path_factory: pytest.TempPathFactory) -> str:
+def dry_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, Path]:
     """`snakemake -n -p` of both targets' notebooks in an empty folder (every job planned)."""
     work = tmp_path_factory.mktemp("plan")
     config = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
@@ -72,11 +76,11 @@ def dry_run(tmp_path_factory: pytest.TempPathFactory) -> str:
         cwd=work, capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr[-3000:]
-    return result.stdout
+    return result.stdout, work
 
 
-def test_every_notebook_rule_passes_every_input(dry_run: str) -> None:
-    jobs = notebook_jobs(dry_run)
+def test_every_notebook_rule_passes_every_input(dry_run: tuple[str, Path]) -> None:
+    jobs = notebook_jobs(*dry_run)
     executed = {Path(p).name for p in jobs}
     # every notebook of both targets is planned: setup, each study's, failures, both scorecards
     assert {"setup.ipynb", "learned.ipynb", "truth.ipynb", "bicycle.ipynb", "ablation.ipynb",

@@ -64,8 +64,9 @@ class StudySpec:
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any]) -> StudySpec:
-        """From a validated config, or the sections a job reads: without ``disturbances``,
-        ``training``, ``controllers`` or ``models``, none of η, one draw, none of either."""
+        """From a validated config, or the sections a job reads (``study`` and
+        ``controllers`` at least): without ``disturbances``, ``training`` or ``models``, no
+        η, one draw and no model entries."""
         study = section(config, "study")
         etas = (config.get("disturbances") or {}).get("eta", [])
         training = config.get("training") or {}
@@ -83,7 +84,7 @@ class StudySpec:
             etas=tuple(etas),
             replicates=int(training.get("replicates", 1)),
             max_trainings=None if cap is None else int(cap),
-            controllers=MappingProxyType(dict(config.get("controllers") or {})),
+            controllers=MappingProxyType(dict(section(config, "controllers"))),
             models=MappingProxyType(dict(config.get("models") or {})),
         )
 
