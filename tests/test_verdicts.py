@@ -301,7 +301,7 @@ def test_the_papers_study_runs_for_every_replicate_and_the_others_for_replicate_
             "controllers": {},
             "disturbances": {"eta": ["0"]},
             "training": {"replicates": 3},
-        }  # fmt: skip
+        }
     )
     runs = study_runs(spec, lambda c: c == "nmpc")
     learned = [r for r in runs if r.study == "learned"]
