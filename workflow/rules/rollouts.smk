@@ -40,7 +40,7 @@ rule rollout:
         CAPE_ENV
     log:
         f"{RUN_LOG}.log",
-    # no benchmark: Snakemake's monitor roughly doubled the wall time of these 1–3 s jobs; the
+    # no benchmark: its monitor costs these short jobs more than they run (docs/design.md); the
     # run times its own phases into timing.json (benchmarks/study_cost.py reads them)
     shell:
         "cape rollout --study {wildcards.study} --plant {wildcards.plant}"

@@ -65,10 +65,11 @@ def _train_arguments(p: argparse.ArgumentParser) -> None:
 @command("train", "train a learned model on the ETHZ windows (SPEC §4)", _train_arguments)
 def cmd_train(args: argparse.Namespace) -> None:
     from cape.models.kernels import pin_before_torch, pin_inductor
+    from cape.specs.training import TrainingSpec
 
-    settings = _spec(args)
-    pin_before_torch(settings.kernels)  # MKL's and ATen's code paths are read when PyTorch loads
-    pin_inductor(settings.kernels)
+    spec = TrainingSpec.from_config(_config(args), args.model)
+    pin_before_torch(spec.kernels)  # MKL's and ATen's code paths are read when PyTorch loads
+    pin_inductor(spec.kernels)
     from cape.models.checkpoint import save_model
     from cape.models.training_run import run_training
 
@@ -82,14 +83,10 @@ def cmd_train(args: argparse.Namespace) -> None:
     for option, (value, least) in counts.items():
         if value is not None and not (math.isfinite(value) and value >= least):  # NaN too
             raise CapeError(f"{option} {value}: give a number of at least {least}")
-    spec = settings.entry(args.model)
     out = Path(args.out)
     _claim(args, _model_output(out, args.model, args.replicate))  # before training
     run = run_training(
-        args.model,
         spec,
-        settings.data,
-        settings.training,
         _read_dataset(args.data),
         Path(args.data),
         out,

@@ -1,26 +1,11 @@
 """The disturbance pipeline scaled by η (SPEC §6), made of sources that plug in like models and
-controllers: a class registered with ``@register_source("name")`` and an entry of the config's
-``disturbances`` section (``module:`` for one outside CAPE, docs/extending.md).
+controllers: ``@register_source("name")`` and an entry of the config's ``disturbances`` section
+(``module:`` for one outside CAPE, docs/extending.md).
 
-The six sources of SPEC §6:
-
-- measurement noise  z = y + N(0, (σ·|y| + ε)²) per state, σ = η·``sigma_per_eta``, the
-                     heading's |y| taken on the heading wrapped to (−π, π]
-- process noise      [vx, vy, ω] += N(0, (2η/100·|·| + ε)²) after each plant step
-- steering delay     the steering command reaches the plant ``steps`` samples late (FIFO)
-- IMU bias drift     random walks added to the measured ψ and ω
-- crosswind          vy and ω kicked after each plant step
-- parameter mismatch the plant's mass, cornering stiffnesses and friction scaled
-
-A source acts at one or more of four points of the loop (``Source``'s hooks): on the command
-before it reaches the plant (``actuate``), on the plant's parameters (``plant_params``), on the
-plant's new state (``after_plant``) and on what the controller measures (``measure``). It is
-active when η exceeds its ``active_from`` (0 by default: any η > 0); at η = 0 nothing is
-corrupted and no random number is drawn, so every seed gives the same run. All draws come from
-one generator seeded by the run's seed, the sources taking their turns in a fixed order (SPEC
-§6's six first, others by name), so a run is exactly repeatable. Table 3 and the block diagram
-(figure 1) list the registered sources of the config, each by its own ``column``, ``cell`` and
-``label``.
+A source acts through ``Source``'s hooks (``actuate``, ``plant_params``, ``after_plant``,
+``measure``) when η exceeds its ``active_from`` (0 by default). At η = 0 nothing is corrupted and
+no random number is drawn. One generator seeded by the run's seed serves the sources in a fixed
+order, so a run is exactly repeatable. The six sources of SPEC §6: docs/modules.md.
 """
 
 from __future__ import annotations

@@ -2,13 +2,8 @@
 
 A plant advances the full state ``[X, Y, ψ, vx, vy, ω]`` by one sample given the input that
 reaches it. Parametric mismatch (SPEC §6) is applied here, inside the plant, never inside a
-controller.
-
-- ``LearnedPlant``: a trained model is the world; it keeps its own history of the last H rows
-  (at reset H copies of ``[vx0, 0, 0, 0, 0, 0, 0]``), predicts Φ, takes the Euler step of the
-  velocities, then moves the pose with the new velocities and the mid-step heading.
-- ``FixedParameterPlant``: the same physics with Φ frozen (SPEC §4.5); no network runs.
-- ``TruthPlant``: the SPEC §1 model with the true parameters, RK4.
+controller. ``LearnedPlant`` (a trained model is the world), ``FixedParameterPlant`` (Φ frozen,
+SPEC §4.5) and ``TruthPlant`` (the SPEC §1 model, RK4). How each steps: docs/modules.md.
 """
 
 from __future__ import annotations

@@ -1,16 +1,10 @@
 """Adaptive NMPC (SPEC §7.4): the nominal NMPC whose drivetrain parameters are corrected online.
 
-Θ = (Cm1, Cr0, Cr2) are held as factors relative to the internal model's own values (nominal
-Θ = 1). Every ``every`` steps, one gradient step of size α on the mean squared one-step
-prediction error of [vx, vy, ω] over the last ``every`` steps, the gradient by forward finite
-differences with relative step ε, and the result projected onto [low, high]. For a model that
-predicts the longitudinal force itself (DPM), the same factors act on the drivetrain law at its
-nominal values and the difference is added to that force (``InternalModel.corrected``).
-
-The loss and its finite differences are one CasADi function built with the NLP, so an update
-costs one call, not 4·``every`` model steps in Python; it is cached serialised beside the
-compiled solvers (``cape.numerics.compiled.serialized_function``), so a job loads it instead of
-building its 4·``every`` model steps.
+Θ = (Cm1, Cr0, Cr2), held as factors of the internal model's own values (nominal Θ = 1), takes
+one gradient step of size α every ``every`` steps on the mean squared one-step prediction error
+of [vx, vy, ω] over the last ``every`` steps, projected onto [low, high]. For DPM the factors
+act on the drivetrain law and the difference is added to its force
+(``InternalModel.corrected``). Details: docs/modules.md.
 """
 
 from __future__ import annotations

@@ -1,15 +1,10 @@
 """A solver call in a forked worker process whose CPU time per call is bounded.
 
-Fatrop's search direction raises its Hessian regularisation until the KKT system factorises,
-with no upper bound: on some problems that loop never ends, and a call would hang its job for
-ever (docs/closed-loop.md). ``Guarded`` runs each call in a worker forked from the process (it
-inherits the solver, so nothing is rebuilt). While it waits for the reply, the caller reads
-the worker's CPU time (``/proc/<pid>/stat``, in clock ticks) every ``poll_s`` of wall time; a
-call that has used more than ``cpu_s`` seconds of CPU is ended (SIGKILL) and reports failure,
-and the next call forks a new worker. A limit in CPU time, not wall time, so that a loaded
-machine does not change which calls fail. Without ``/proc`` the worker's own CPU limit
-(RLIMIT_CPU, whole seconds, at least one more) ends it instead; where the platform cannot
-fork, calls run in the process, unguarded.
+``Guarded`` runs each call in a worker forked from the process. A call that has used more than
+``cpu_s`` seconds of CPU, read every ``poll_s`` of wall time, is ended (SIGKILL) and reports
+failure, and the next call forks a new worker. Without ``/proc`` the worker's own CPU limit ends
+it instead; where the platform cannot fork, calls run in the process, unguarded. Why, and why CPU
+time: docs/modules.md.
 """
 
 from __future__ import annotations

@@ -1,15 +1,11 @@
-"""A controller's internal model (SPEC §7.3): the model's own discrete step, and where its Φ
-comes from.
+"""A controller's internal model (SPEC §7.3): its discrete step, and where its Φ comes from.
 
-- ``learned``: Φ is predicted once per step from the controller's own history of measured
-  states and commanded inputs (the plant's window format), held over the horizon;
+- ``learned``: Φ predicted once per step from the controller's own history, held over the horizon;
 - ``fixed``: the frozen Φ of SPEC §4.5;
 - ``truth``: the ground-truth parameters in the Deep Dynamics structure (the ceiling).
 
-The discrete step is the learned models' (Euler velocities, mid-step-heading pose), written on
-the backend-neutral equations, so the NLP and the numeric checks share it. Its state carries
-the last applied input, ``[X, Y, ψ, vx, vy, ω, T_app, δ_app]``, because the Enhanced Physics
-Model's actuator lag makes the applied input a state.
+The step is the learned models', on the backend-neutral equations; its state carries the last
+applied input, ``[X, Y, ψ, vx, vy, ω, T_app, δ_app]``. Why: docs/modules.md.
 """
 
 from __future__ import annotations

@@ -1,19 +1,11 @@
 """Nominal NMPC (SPEC §7.3) in CasADi, and the base of the adaptive and robust variants.
 
-The controller: each step it predicts Φ with its internal model, fills the problem's parameter
-vector (``cape.controllers.ocp.TrackingOCP``: the optimal-control problem, built once per run)
-and solves it warm-started from the shifted previous solution. The solver is the settings'
-``solver``: ``sqp`` (the default, the condensed SQP of ``cape.controllers.sqp``), ``ipopt`` (the
-reference) or ``sqpmethod`` (CasADi's SQP), the last two on the multiple-shooting NLP
-(``cape.controllers.shooting``); each behind the small interfaces of
-``cape.controllers.solvers``. When the internal model has no throttle path (DPM predicts Frx),
-only the steering is optimised and the throttle comes from the PID speed loop. When the SQP
-does not converge, a rescue solves the same problem from its last iterate: Fatrop on the
-stage-wise form of the NLP (``cape.controllers.stagewise``, the default) or IPOPT on the
-multiple-shooting NLP. When that fails too, the controller applies the next input of its
-previous plan and counts a fallback.
-
-The settings' schema is data beside this module (``nmpc_settings.json``).
+Each step it predicts Φ, fills the parameter vector of ``cape.controllers.ocp.TrackingOCP`` and
+solves warm-started with the settings' ``solver``: ``sqp`` (the default, ``cape.controllers.sqp``),
+``ipopt`` or ``sqpmethod``. A model without a throttle path (DPM) has only its steering
+optimised, the throttle from the PID speed loop. A failed SQP is rescued (Fatrop by default, or
+IPOPT); when that fails too, the controller applies its previous plan's next input and counts a
+fallback. The settings' schema: ``nmpc_settings.json``. Details: docs/modules.md.
 """
 
 from __future__ import annotations

@@ -1,15 +1,11 @@
 """The NMPC's optimal-control problem (SPEC §7.3), defined once, stage by stage.
 
 Cost Σ_{k=1..N} ‖p_k − p_ref,k‖²_Q + Σ_{k=0..N−1} ‖Δu_k‖²_R + Σ (w1·ε_k + w2·ε_k²), soft track
-constraints |n_k·(p_k − c_k)| ≤ half width − margin + ε_k, input bounds and the steering rate
-limit, and the internal model's own discrete step. Φ, the previous input, the reference points,
-the track constraint's centre points and normals, its bound, an additive disturbance estimate
-d̂ (SPEC §7.5) and the drivetrain factors Θ (SPEC §7.4) are *parameters* (``layout``): the
-problem is built once per run and only its parameter vector changes each step.
-
-``stage_terms`` and ``model_step`` are what every formulation is built from: the condensed SQP
-(``cape.controllers.sqp``), the multiple-shooting NLP (``nlp``, for IPOPT and CasADi's
-sqpmethod) and Fatrop's stage-wise form (``cape.controllers.stagewise``).
+constraints |n_k·(p_k − c_k)| ≤ half width − margin + ε_k, input bounds, the steering rate limit
+and the internal model's own discrete step. Φ, d̂ (SPEC §7.5), Θ (SPEC §7.4) and the other data
+of a step are *parameters* (``layout``): built once per run, only the parameter vector changes.
+``stage_terms`` and ``model_step`` build every formulation: ``cape.controllers.sqp``, ``nlp``
+and ``cape.controllers.stagewise``. The parameters in full: docs/modules.md.
 """
 
 from __future__ import annotations

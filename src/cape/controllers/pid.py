@@ -1,17 +1,10 @@
 """PID (SPEC §7.1): δ = PID_ψ(e_ψ) + PID_cte(−e_cte), T = PID_v(e_vx).
 
-Heading and cross-track errors are taken at a look-ahead point ahead of the projection:
-``lookahead: {time: t_L}`` puts it ``t_L·vx`` ahead (the default, 0.05 s), ``{distance: L}`` a
-fixed ``L`` metres ahead (the paper-literal 0.05 m). e_cte is the paper's (positive left of the
-line), so it enters negated: a car left of the line steers right.
-
-Latency compensation: the errors are computed from the measured pose predicted ahead
-(``preview_pose``) by the actuator's steering delay plus the law's own ``lead``
-(``preview_time``), because the one-step steering delay of SPEC §6 meets a yaw response fast
-enough (17–31 rad/s per rad) to make the uncompensated law a ±0.35 rad limit cycle. The
-controller is told the run's delay (none at η = 0), so the preview matches the actuator.
-``lead: 0`` and ``compensate_delay: false`` with a fixed look-ahead is the law as printed (the
-``pid_paper`` entry).
+The errors are taken at a look-ahead point (``lookahead``: ``{time: t_L}``, the default, 0.05 s,
+or ``{distance: L}``) on the measured pose predicted ahead by the actuator's steering delay plus
+the law's own ``lead`` (``preview_time``); e_cte is positive left of the line. ``lead: 0`` and
+``compensate_delay: false`` with a fixed look-ahead is the law as printed (the ``pid_paper``
+entry). Why the compensation: docs/modules.md.
 """
 
 from __future__ import annotations

@@ -1,21 +1,11 @@
 """RISE (SPEC §7.2): the standard robust integral of the sign of the error (Xian et al. 2004)
 on the cross-track error.
 
-The paper writes RISE as a steering-rate law that makes the lateral loop a triple integrator
-without damping (it cannot lap any track). CAPE implements the standard form, with the paper's
-gains where they have a place:
-    e1 = e_cte (positive left of the line) at the projection,
-    ė1 = vx·sin(ψ − ψ_ref) + vy·cos(ψ − ψ_ref),
-    e2 = ė1 + α·e1,
-    δ = −[(k_s + 1)·(e2 − e2(0)) + ∫((k_s + 1)·α·e2 + β·sgn(e2)) dt],  sgn(x) ≈ tanh(x / w),
-with |∫β·sgn(e2) dt| ≤ k_u (anti-windup for the robust term), and throttle from the PID speed
-loop with its proportional gain set to k_v.
-
-Latency compensation (SPEC §7.1–7.2): e1 and ė1 come from the measured pose predicted ahead by
-the actuator's steering delay plus the law's own ``lead`` (``preview_time``), and the steering is
-scaled by min(1, v0/vx) with ``v0 = speed_schedule`` (the yaw gain grows with speed).
-``lead: 0``, ``compensate_delay: false`` and ``speed_schedule: null`` give the law as printed
-(the ``rise_paper`` entry).
+The steering is the standard RISE law on e1 = e_cte, with the paper's gains where they have a
+place and the anti-windup bound k_u; the throttle is the PID speed loop with its proportional
+gain set to k_v. Latency compensation (SPEC §7.1–7.2): ``lead``, ``compensate_delay``,
+``speed_schedule``; ``lead: 0``, ``compensate_delay: false`` and ``speed_schedule: null`` give
+the law as printed (the ``rise_paper`` entry). The law's equations: docs/modules.md.
 """
 
 from __future__ import annotations

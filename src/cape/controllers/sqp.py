@@ -1,37 +1,11 @@
 """The NMPC's default solver: a condensed SQP with a trust region, every iterate feasible
 (SPEC §7.3).
 
-The optimal control problem is the NMPC's own (``stage_terms``: cost, soft track constraint,
-rate and input bounds; ``step``: the internal model); only its formulation differs from the
-multiple-shooting NLP of the rescue solvers. The states are eliminated (single shooting from
-the measured x_0), so the decision variables are the N inputs and the N slacks of the soft
-track constraint, and every QP is small and dense. What a solve does:
-
-- **Feasible iterates.** The warm start (the previous plan shifted) is projected onto the
-  input and rate bounds (``prepare``), and after every step the slacks are reset to the least
-  feasible value ``ε_k = max(0, |offset_k(u)| − bound)``: the solve minimises one function of
-  the inputs, the merit ``F(u) = cost(u, ε(u))``, over a polytope.
-- **A convexified exact Hessian.** Each QP's Hessian is the Lagrangian's exact Hessian in the
-  inputs plus ``κ·aaᵀ`` for every constraint row ``a`` active at the iterate (positive definite
-  where that constraint forbids the indefinite directions); where its Cholesky factorisation
-  still fails, the Gauss–Newton matrix of the least-squares cost replaces it. daqp (a dual
-  active-set solver) solves the QP.
-- **A trust region, not a line search.** The step is bounded by a radius in units of each
-  input's range; a step is accepted when F falls by at least ``RATIO_ACCEPT`` of the QP's
-  predicted decrease, and the ratio of actual to predicted decrease grows or shrinks the radius.
-  A rejected step first gets a second-order correction of the track offsets (against the
-  Maratos effect) before the region shrinks.
-- **Few Python calls.** Each linearisation, QP and trial point is one CasADi function called
-  through ``Function.buffer()`` on preallocated arrays; the functions are compiled C, built
-  once per problem structure and cached.
-
-``stats.status`` is ``converged`` (an accepted step shorter than ``tol``, or than
-``newton_tol`` in Newton's quadratic regime, or no decrease left above rounding) or one of the
-failures: ``max_iter``, ``no_decrease`` (the region shrank below ``RADIUS_MIN``),
-``not_finite`` (the internal model's prediction left the floats), ``qp_failed`` (daqp returned
-no solution); before any solve it is ``not solved``. After a failure the next solve starts
-cold; the controller's rescue and fallback are its own (``cape.controllers.nmpc``). Why this
-solver and not CasADi's ``sqpmethod``, with the measurements: docs/closed-loop.md.
+It solves the NMPC's own problem (``stage_terms``, ``step``) over the N inputs and the N track
+slacks, the states eliminated by single shooting from the measured x_0. ``stats.status`` is
+``converged`` or one of ``max_iter``, ``no_decrease``, ``not_finite``, ``qp_failed``; before any
+solve it is ``not solved``. After a failure the next solve starts cold; the rescue and fallback
+are the controller's (``cape.controllers.nmpc``). How a solve works: docs/modules.md.
 """
 
 from __future__ import annotations

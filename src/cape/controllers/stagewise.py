@@ -1,17 +1,9 @@
 """The NMPC's problem stage by stage, for Fatrop (SPEC §7.3: any solver of the same OCP).
 
-The same optimal control problem as ``TrackingOCP.nlp`` (``cape.controllers.ocp``), written in
-the form Fatrop's structure detection reads: the decision vector stage by stage, ``[x_0, u_0 |
-x_1, c_1, u_1, ε_1 | … | x_N, c_N, ε_N]``, each stage's controls (u_k, ε_k) after its state, so
-that the slack ε_k of the track bound on p_k is a control of stage k; the constraints stage by
-stage, the gap first, then the stage's path constraints (the soft track bound on p_k, the
-steering rate of u_k). A path constraint may not reach back to the previous stage, and the
-steering rate and the cost's input change compare u_k with u_{k−1}: stage k carries a copy c_k
-of u_{k−1} in its state (gap c_{k+1} = u_k; at k = 0 the parameter u_prev, as in ``nlp``). The
-feasible sets and the costs are the same; only the copies are added.
-
-Fatrop solves it by an interior-point method whose linear algebra is a Riccati recursion over
-the stages instead of a sparse factorisation of the whole KKT system (docs/closed-loop.md).
+The same optimal control problem as ``TrackingOCP.nlp`` (``cape.controllers.ocp``), in the form
+Fatrop's structure detection reads: ``[x_0, u_0 | x_1, c_1, u_1, ε_1 | … | x_N, c_N, ε_N]``,
+stage k carrying a copy c_k of u_{k−1}. The feasible sets and the costs are the same; only the
+copies are added. The layout and why: docs/modules.md.
 """
 
 from __future__ import annotations

@@ -1,20 +1,10 @@
 """A run's record on disk: its three files written together, and read back only when intact.
 
-``cape rollout`` writes a run folder (``RUN_FILES``) in one rename; everything that reads it
-(the aggregation, the notebooks, ``cape plot-rollout``) goes through ``read_metrics``,
-``read_timing`` and ``read_series`` here, which refuse a folder whose files do not fit:
-
-- ``metrics.json`` must match its schema (``cape/schemas/metrics.schema.yaml``: every field
-  a table reads, with its type), the checksum it carries (``sha256``, over the rest: a
-  hand-edited value is refused), and, where the folder names a run, that run (a copy of
-  another run's metrics is refused);
-- ``timing.json`` (wall-clock numbers: solve times, the job's phases) must match the checksum
-  it carries, and ``timeseries.parquet`` the digest it records (``series_sha256``: a
-  truncated or replaced file is refused; the series holds each step's solve time, so its
-  digest lives with the timing, not in the byte-reproducible metrics).
-
-Every refusal is a ``CapeError`` naming the run folder and the fix: delete the folder and
-rerun (Snakemake then recomputes exactly that run).
+``cape rollout`` writes a run folder (``RUN_FILES``) in one rename; every reader goes through
+``read_metrics``, ``read_timing`` and ``read_series``, which refuse a folder whose files do not
+fit (schema ``cape/schemas/metrics.schema.yaml``, checksums, run). Every refusal is a
+``CapeError`` naming the run folder and the fix: delete the folder and rerun (Snakemake then
+recomputes exactly that run). The checks per file: docs/modules.md.
 """
 
 from __future__ import annotations

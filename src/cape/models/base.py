@@ -1,14 +1,10 @@
 """The network half of a learned model (SPEC §4), in PyTorch: window → Φ.
 
-Every model shares the same network: a GRU over the standardised window (none when
-``gru.layers`` is 0: a plain MLP), a fully connected trunk over the GRU's outputs (or the
-window's rows), and an output layer that is a physics guard when Φ is bounded.
-What differs between models, the physics after Φ, is a ``ModelPhysics`` (torch-free, in
-``cape.models.physics``); ``LearnedModel`` holds one and answers for it, so ``model.param_names``
-or ``model.step_velocities(...)`` read the model's physics.
-
-Only training and the open-loop evaluation need this class. The closed loop runs the exported
-weights in NumPy (``cape.models.network``) and never imports PyTorch.
+Every model shares one network: a GRU over the standardised window (none when ``gru.layers`` is
+0), a fully connected trunk, and an output layer that is a physics guard when Φ is bounded.
+``LearnedModel`` holds the model's ``ModelPhysics`` (``cape.models.physics``) and answers for it
+(``model.param_names``, ``model.step_velocities(...)``). Only training and the open-loop
+evaluation need this class; the closed loop never imports PyTorch (docs/modules.md).
 """
 
 from __future__ import annotations

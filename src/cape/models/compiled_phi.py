@@ -1,15 +1,10 @@
 """Φ of one window as one compiled function: the scaled window, the GRU stack, the trunk and
 the physics guard in a single call of C code, cached per trained model (``rollout.compile``).
 
-The library holds two parts. The scaling and the GRU are CasADi's code of the same SX function
-the uncompiled path evaluates in CasADi's virtual machine (``NumpyNetwork.front_function``).
-The trunk and the guard are C written here: the trunk in float32, as the training graph and
-the uncompiled NumPy trunk compute it, in 8 lanes (GCC's vector extensions, with an AVX2 + FMA
-clone picked at load time: ``target_clones``), its weights compiled in as the bytes of string
-literals; the guard in float64. Why not CasADi's own code for the trunk, with the timings:
-docs/design.md ("Fast inference without PyTorch") and docs/models.md.
-
-The generated code depends on this module's source, which is part of the cache key.
+The scaling and the GRU are CasADi's code of ``NumpyNetwork.front_function``; the trunk (in
+float32, as the training graph computes it) and the guard (in float64) are C written here. The
+generated code depends on this module's source, which is part of the cache key. The library in
+detail: docs/modules.md.
 """
 
 from __future__ import annotations

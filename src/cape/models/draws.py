@@ -1,16 +1,10 @@
 """Which trainings become a model's draws (SPEC §4, "a draw is a training that works").
 
-A model's k-th training (k = 0, 1, …) trains with seed ``training.seed + k``. Its health
-record (``health.json``, written by ``cape check-training``) says whether it passed the checks
-on the training alone. Draw r of the model is its (r + 1)-th training that passed, the
-trainings taken in seed order, so one config gives one set of draws. A model allows at most
-``max_trainings`` trainings; when they run out with fewer passes than draws, the remaining
-draws are its failed trainings in seed order, flagged ``trained: false`` (the verdicts over
-trained draws leave them out and say so).
-
-``choose_training`` asks for the outcomes it needs through a callback, in an order that lets
-a workflow plan trainings side by side: before it asks for training k it asks for the earliest
-training that could be this draw's, so that draw r's first question is training r.
+A model's k-th training trains with seed ``training.seed + k``; draw r is its (r + 1)-th training
+that passed the checks (``health.json``), in seed order. When ``max_trainings`` run out, the
+remaining draws are its failed trainings in seed order, flagged ``trained: false``.
+``choose_training`` asks for the outcomes it needs through a callback; draw r's first question
+is training r. Details: docs/modules.md.
 """
 
 from __future__ import annotations

@@ -1,18 +1,9 @@
 """Did a training work? (SPEC §4: a failed training is a result, not a model.)
 
-A training that fails the checks on the training alone is kept with its reasons and replaced
-by the model's next training seed (cape.models.draws); the verdicts are over the draws that
-trained, with the verdict over every draw beside. The checks, with their settings in
-``training.health``:
-
-- *finite numbers*: a training loss or a validation RMSE that is NaN or infinite fails;
-- *the bar* (SPEC §4.2, for the models it names: DDM and EPM): one-step RMSE on the ETHZ
-  validation split below ``val_rmse_max`` for every component;
-- *a stalled loss*: the training loss falls by less than ``stall.min_drop`` (relative) after
-  epoch ``stall.after``.
-
-Beside them, never a reason to retrain: *an outlier among draws*, a best validation loss more
-than ``outlier_factor`` × the median of the model's draws (needs three or more).
+A training that fails the checks (settings in ``training.health``: finite numbers, the bar of
+SPEC §4.2 for DDM and EPM, a stalled loss) is kept with its reasons and replaced by the model's
+next training seed (``cape.models.draws``). An outlier among draws is checked beside them, never a
+reason to retrain. The checks in full: docs/modules.md.
 """
 
 from __future__ import annotations

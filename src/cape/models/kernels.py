@@ -1,14 +1,9 @@
 """Which CPU code paths a training's kernels take (``training.kernels``; docs/models.md).
 
-A training is bit-identical on one machine, but its kernels pick their code path by the CPU:
-MKL dispatches its matrix products by the processor (on this machine's AMD EPYC its default
-path, its AVX2 branch and its SSE2 ``COMPATIBLE`` branch give three different trainings),
-Inductor vectorises the compiled step to the widest vector width the CPU has, and ATen's
-eager kernels likewise. Each can be pinned: MKL by its conditional numerical reproducibility
-(``MKL_CBWR``), ATen by ``ATEN_CPU_CAPABILITY``, Inductor by its ``cpp.simdlen``. Unset, a
-training takes the CPU's own paths (the default: replicate 0's models are those of earlier
-studies). MKL and ATen read their variables when PyTorch loads, so ``pin_before_torch`` runs
-before ``import torch``.
+MKL (``MKL_CBWR``), ATen (``ATEN_CPU_CAPABILITY``) and Inductor (``cpp.simdlen``) can each be
+pinned; unset, a training takes the CPU's own paths (the default). MKL and ATen read their
+variables when PyTorch loads, so ``pin_before_torch`` runs before ``import torch``. Why:
+docs/modules.md.
 """
 
 from __future__ import annotations

@@ -1,20 +1,11 @@
 """The learned models' network without PyTorch: what the closed loop runs.
 
-The closed loop asks for Φ of one window thousands of times per run, in a process of its own
-per run, where PyTorch's per-operation overhead and import time would dominate (the numbers:
-docs/design.md). So the trained weights are exported once to ``network.npz``
-(``LearnedModel.network_arrays``) and run here, two ways:
-
-- compiled (``rollout.compile``, the default): the whole prediction, scaled window → GRU stack
-  → trunk → guard, as one C function, cached per trained model (``cape.models.compiled_phi``;
-  ``cape export-network`` builds it);
-- uncompiled (no compiler, or ``enabled: false``, as the smoke configuration runs it): the
-  scaling and the GRU as the same CasADi function in CasADi's virtual machine, and the trunk
-  as NumPy float32 matrix–vector products, like the training graph. This NumPy trunk is the
-  fallback of the compiled one: the same layers from the same arrays, held by the same test.
-
-Both keep to the training graph within its own float32 rounding (tests: ≤ 1e-6 relative on
-the next state). Neither imports SciPy: GELU's erf is CasADi's.
+The trained weights, exported to ``network.npz`` (``LearnedModel.network_arrays``), run here
+compiled (``rollout.compile``, the default: one C function per trained model,
+``cape.models.compiled_phi``) or uncompiled (CasADi's virtual machine and a NumPy float32 trunk,
+the compiled one's fallback). Both keep to the training graph within its own float32 rounding
+(tests: ≤ 1e-6 relative on the next state). Neither imports SciPy. Why, and the two paths:
+docs/modules.md.
 """
 
 from __future__ import annotations

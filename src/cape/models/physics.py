@@ -1,16 +1,10 @@
 """The physics half of a learned model (SPEC §4), free of PyTorch.
 
-A learned model maps a window Z (H × 7 rows of ``[vx, vy, ω, T_fb, δ_fb, ΔT, Δδ]``) to a
-parameter vector Φ, then takes one forward-Euler step of the shared vehicle equations from the
-last row. This module is the second half: which parameters Φ holds, which are fixed, how Φ
-becomes the mapping the equations read, how the commanded input becomes the applied one, and
-which optional terms of the equations a model switches on. It is written on the
-backend-neutral equations of ``cape.vehicle``, so the same code serves training (tensors), the
-closed-loop plant (NumPy) and the NMPC (CasADi symbols), and the closed loop never imports
-PyTorch (whose import alone costs seconds per rollout job).
-
-A new model is one subclass registered with ``@register_model("name")``; the network in front
-of it (``cape.models.base.LearnedModel``) is the same for every model.
+Which parameters Φ holds and which are fixed, how Φ becomes the mapping the shared vehicle
+equations read, how the commanded input becomes the applied one, and which optional terms of
+the equations a model switches on. Written on the backend-neutral equations of ``cape.vehicle``.
+A new model is one subclass registered with ``@register_model("name")``. Background:
+docs/modules.md.
 """
 
 from __future__ import annotations

@@ -28,6 +28,7 @@ from cape.models.training import (
     train_model,
     training_fingerprint,
 )
+from cape.specs.training import TrainingSpec
 
 
 @dataclass
@@ -44,10 +45,7 @@ class TrainingRun:
 
 
 def run_training(
-    name: str,
-    spec: dict[str, Any],
-    data_section: dict[str, Any],
-    training_section: dict[str, Any],
+    spec: TrainingSpec,
     dataset: dict[str, Any],
     data_path: Path,
     out: Path,
@@ -59,24 +57,21 @@ def run_training(
     checkpoint_every: float | None = None,
     announce: Any = print,
 ) -> TrainingRun:
-    """Train model ``name`` (its config entry ``spec``) on ``dataset`` (read from
-    ``data_path``), checkpointing into ``out``; the options override the config's seed, epoch
-    count, threads and checkpoint interval. ``announce`` receives one line before training."""
-    seed = int(seed if seed is not None else training_section["seed"])
-    split = data_section["split"]
+    """Train ``spec``'s model on ``dataset`` (read from ``data_path``), checkpointing into
+    ``out``; the options override the spec's seed, epoch count, threads and checkpoint
+    interval. ``announce`` receives one line before training."""
+    name, entry = spec.model, dict(spec.entry)
+    seed = int(seed if seed is not None else spec.seed)
+    split = spec.split
     data = TrainingData.from_dataset(
-        dataset, int(spec["history"]), float(split["train_fraction"]), int(split["seed"])
+        dataset, int(entry["history"]), float(split["train_fraction"]), int(split["seed"])
     )
-    threads = int(threads or training_section["threads"])
+    threads = int(threads or spec.threads)
     data_sha256 = hashlib.sha256(data_path.read_bytes()).hexdigest()
-    fused = bool(training_section.get("fused_adam", True))
-    compiled = bool((training_section.get("compile") or {}).get("enabled", False))
-    kernels = in_effect(training_section.get("kernels"))
-    fingerprint = _fingerprint(
-        name, spec, data_section, training_section, seed, epochs, threads, data_sha256
-    )
-    every = training_section.get("checkpoint_every", 60.0)
-    every = float(every if checkpoint_every is None else checkpoint_every)
+    compiled = bool((spec.compile or {}).get("enabled", False))
+    kernels = in_effect(spec.kernels)
+    fingerprint = _fingerprint(spec, seed, epochs, threads, data_sha256)
+    every = float(spec.checkpoint_every if checkpoint_every is None else checkpoint_every)
     checkpoint = Checkpointing(out / f"checkpoint-{fingerprint[:16]}.pt", fingerprint, every)
     announce(
         f"training {name}: {len(data.train)} training / {len(data.val)} validation "
@@ -84,14 +79,14 @@ def run_training(
     )
     result = train_model(
         name,
-        spec,
+        entry,
         data,
-        ts=float(data_section["ts"]),
+        ts=spec.ts,
         seed=seed,
         epochs=epochs,
         threads=threads,
-        fused=fused,
-        compile_settings=training_section.get("compile"),
+        fused=spec.fused_adam,
+        compile_settings=spec.compile,
         checkpoint=checkpoint,
     )
     meta = {  # in this order in meta.json
@@ -132,30 +127,23 @@ def _outcome(result: TrainingResult) -> dict[str, Any]:
 
 
 def _fingerprint(
-    name: str,
-    spec: dict[str, Any],
-    data_section: dict[str, Any],
-    training_section: dict[str, Any],
-    seed: int,
-    epochs: int | None,
-    threads: int,
-    data_sha256: str,
+    spec: TrainingSpec, seed: int, epochs: int | None, threads: int, data_sha256: str
 ) -> str:
     """The training's identity, the key of its resumable checkpoint: everything its numbers
     depend on (a checkpoint never resumes under another setting)."""
-    compile_cfg = training_section.get("compile") or {}
+    compile_cfg = spec.compile or {}
     compiled = bool(compile_cfg.get("enabled", False))
-    kernels = in_effect(training_section.get("kernels"))
+    kernels = in_effect(spec.kernels)
     return training_fingerprint(
-        model=name,
-        spec={k: v for k, v in spec.items() if k not in PRESENTATION_KEYS},
-        ts=float(data_section["ts"]),
+        model=spec.model,
+        spec={k: v for k, v in spec.entry.items() if k not in PRESENTATION_KEYS},
+        ts=spec.ts,
         seed=seed,
-        epochs=int(epochs if epochs is not None else spec["train"]["epochs"]),
-        split=data_section["split"],
+        epochs=int(epochs if epochs is not None else spec.entry["train"]["epochs"]),
+        split=spec.split,
         data_sha256=data_sha256,
         threads=threads,
-        fused=bool(training_section.get("fused_adam", True)),
+        fused=spec.fused_adam,
         compiled=compiled,
         cpp_wrapper=compiled and bool(compile_cfg.get("cpp_wrapper", False)),
         step=TRAINING_STEP,

@@ -41,8 +41,8 @@ def jsonschema_module() -> Any:
     """``jsonschema``, imported without its optional IRI format checker.
 
     That checker (``rfc3987_syntax``, which Jupyter's dependencies install) compiles its
-    grammars on import, seconds in every ``cape`` process; CAPE's schemas check no IRI format,
-    so the import is skipped. A process that imported ``jsonschema`` first keeps what it loaded.
+    grammars on import; CAPE's schemas check no IRI format, so the import is skipped
+    (docs/design.md). A process that imported ``jsonschema`` first keeps what it loaded.
     """
     if "jsonschema" not in sys.modules and "rfc3987_syntax" not in sys.modules:
         sys.modules["rfc3987_syntax"] = None  # type: ignore[assignment]  # import → ImportError

@@ -48,10 +48,6 @@ class ModelsSpec:
         return _need(self.data, "data", "split")
 
     @property
-    def kernels(self) -> Mapping[str, Any] | None:
-        return self.training.get("kernels")
-
-    @property
     def health(self) -> Mapping[str, Any]:
         return _need(self.training, "training", "health")
 

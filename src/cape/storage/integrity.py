@@ -1,19 +1,11 @@
 """Checksums of what the workflow writes, checked by whatever reads it.
 
-A trained model, an exported network, frozen parameters, the reference raceline and the compiled
-solver libraries are produced by one rule and read by many. A file damaged on disk (a flipped
-byte, a truncated copy, an edit) must not be read as if it were valid: a corrupted ``model.pt``
-once exported NaN weights and every rollout reported its controller's "failure". So each of
-these files carries the SHA-256 of its content, written by the rule that made it, and the reader
-compares it before use:
-
-- ``.npz`` arrays (network, raceline): an array ``sha256`` inside the file, over the others;
-- JSON records (frozen Φ): a ``sha256`` field over the rest;
-- ``model.pt``: its digest in ``meta.json`` (written after it);
-- native libraries (the compiled solvers and networks in the cache): a ``.sha256`` file beside
-  each, since a damaged library would otherwise crash the process when it is loaded.
-
-A mismatch raises ``CapeError`` naming the file and the fix (delete it and rebuild it).
+Each file below carries the SHA-256 of its content, written by the rule that made it and compared
+by the reader before use: ``.npz`` arrays (network, raceline) an array ``sha256`` over the
+others; JSON records (frozen Φ) a ``sha256`` field over the rest; ``model.pt`` its digest in
+``meta.json``; native libraries (compiled solvers and networks) a ``.sha256`` file beside each.
+A mismatch raises ``CapeError`` naming the file and the fix (delete it and rebuild it). Why:
+docs/modules.md.
 """
 
 from __future__ import annotations

@@ -1,20 +1,11 @@
 """Resuming after an interruption: Snakemake locks that provably belong to no living run.
 
-Snakemake locks its working directory while it runs and removes the locks when it ends; a run
-killed with SIGKILL (or by a power loss, or a lost node) leaves them, and the next run refuses
-to start until ``snakemake --unlock``. The README promises that the documented command picks up
-where it stopped, so the workflow removes locks left behind, but only when it can prove that
-no run which could have written them is alive. A lock file says nothing of its writer, so
-every main Snakemake process of this workflow leaves a record of itself first
-(``.snakemake/cape-runs/*.json``: host, boot, PID namespace, PID and the process's start time),
-before Snakemake takes its locks, and removes it when it exits.
-
-Locks are stale when every record is provably dead (same host, same boot, same PID namespace,
-and no process with that PID and start time exists), at least one such record exists, and no
-process of this PID namespace that runs Snakemake works in this directory. Anything else (a
-record of another host or PID namespace, where another node of a shared file system or a
-container works; a living run; locks without any record, from another Snakefile or an older
-CAPE) cannot be proven, and the locks stay, with a message that says how to remove them by hand.
+Every main Snakemake process of this workflow records itself (``.snakemake/cape-runs/*.json``:
+host, boot, PID namespace, PID and start time) before Snakemake takes its locks, and removes the
+record when it exits. Locks are removed only when every record is provably dead, at least one
+exists, and no Snakemake process of this PID namespace works in this directory. Otherwise they
+stay, with a message that says how to remove them by hand. Why, and what cannot be proven:
+docs/modules.md.
 """
 
 from __future__ import annotations

@@ -1,23 +1,10 @@
 """One write policy: a command replaces only its own earlier output, and one writer at a time.
 
-Every file or folder a ``cape`` command or a benchmark writes is claimed first, before any
-work (``claim``). An output is described by what it is and which one (``Output``: a run of
-the same run, a network of the same model and replicate, a table of the same table). The
-claim refuses, with one line naming the path and the fix, and changes nothing:
-
-- a suffix the output cannot be written as;
-- ``/``, the home folder, the working folder or any folder above it, and the repository;
-- a symbolic link, or a file where a folder belongs (and the reverse);
-- an existing output whose owner record says it is another kind or another one. So is one
-  that has no such record (a user's file, a copy of another table, a folder of other
-  files), unless the command's own record inside it names the same output (``recognise``);
-- an output another writer holds right now.
-
-The owner record is a small hidden file beside the output, ``.<name>.owner``. It holds the
-kind and identity. It is also the writer's lock (``flock``), held until the command ends
-(``release``), so two writers of one output cannot both win. A failed command removes the
-record it made for an output that does not exist, and the folders it made for it, so it
-leaves nothing behind.
+Every output a ``cape`` command or a benchmark writes is claimed before any work (``claim``, with
+an ``Output``: its kind and identity). A refused claim names the path and the fix and changes
+nothing. The owner record ``.<name>.owner`` beside the output holds the kind and identity and is
+the writer's ``flock`` until the command ends (``release``). A failed command removes the record
+and the folders it made for an output that did not exist. What a claim refuses: docs/modules.md.
 """
 
 from __future__ import annotations

@@ -1,15 +1,7 @@
 """A minimal Parquet writer: equal-length float64 columns, one row group, plain encoding.
 
-Why it exists: a rollout job writes one small table (its time series), and importing
-``pyarrow`` to do so cost about a tenth of a second in each of thousands of jobs, more than
-the table's whole write. Every reader (pandas, pyarrow, DuckDB, …) reads the standard file this
-writes, so nothing downstream changes; the aggregation and the notebooks keep reading with
-pyarrow.
-
-The file follows the Apache Parquet format specification: the magic ``PAR1``; per column one
-data page (v1 header, PLAIN encoding, uncompressed, a REQUIRED DOUBLE column, so no definition
-or repetition levels); the footer's ``FileMetaData``; its length; ``PAR1``. Headers and footer
-are Thrift structures in the compact protocol, written by the few encoders below.
+It writes a standard Apache Parquet file that every reader (pandas, pyarrow, DuckDB, …) reads.
+Why it exists, and the file's layout: docs/modules.md.
 """
 
 from __future__ import annotations

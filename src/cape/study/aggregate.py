@@ -1,18 +1,10 @@
 """Every run's metrics in one tidy table (``runs.parquet``), and summaries over seeds.
 
 A run is identified by (study, replicate, plant, internal, controller, eta, seed)
-(``cape.layout.runs.RunId``, which also names its folder); its ``metrics.json`` records them all,
-and ``timing.json`` beside it the solve times. Summaries group the seeds of one cell (of one
-training replicate): the mean of a metric with its 95 % confidence interval (Student's t over
-the seeds), the success rate, and the failure-penalised means of SPEC §5.3 (a failed run
-counts with the penalty values).
-
-With five seeds and a cell that half laps and half fails, the t-interval of a penalised mean is
-wide enough to cross values no run can take (a negative lap time). Beside the half-width
-(``_ci``, what the tables print) the summary keeps that interval intersected with the range
-the metric's runs can take (``_lo``, ``_hi``, what the figures draw): every metric is
-non-negative, and a penalised lap time is at most the larger of the time limit and the
-penalty, since a lap that ends succeeds before the limit and a failure counts as the penalty.
+(``cape.layout.runs.RunId``). Summaries group the seeds of one cell: a metric's mean with its
+95 % Student-t half-width (``_ci``, what the tables print) and that interval intersected with the
+range the metric's runs can take (``_lo``, ``_hi``, what the figures draw), the success rate, and
+the failure-penalised means of SPEC §5.3. Why the intersected interval: docs/modules.md.
 """
 
 from __future__ import annotations

@@ -1,16 +1,11 @@
 """Table 9, the leaderboard: where each learned model stands, in one study, over its training
 draws and disturbance seeds (SPEC §9, §10).
 
-One row per model of the study (every model of the grid, a new one included: nothing here names
-a model). Each closed-loop metric is the model's value per (draw, seed), averaged over a draw's
-seeds, with the Student-t interval over the draws (over the seeds with one draw:
-cape.study.verdicts); beside them the model's open-loop RMSE and complexity (tables 4 and 1,
-mean over draws) and its effect against the reference model on the primary metric, paired on
-draw and seed, with a verdict (``lower``, ``higher`` or ``inconclusive``) and, when undecided,
-the draws that would decide it. Rows are ranked by the primary metric (lowest first), over
-the draws whose training worked; a model without a value of it is ``not evaluated`` and
-unranked, and a board without the reference model's runs says so on every row. As in table 8,
-a point (one value, or values that do not vary) decides nothing.
+One row per model of the study (nothing here names a model), ranked by the primary metric
+(lowest first) over the draws whose training worked; a model without a value of it is
+``not evaluated`` and unranked. A row holds the closed-loop metrics with their intervals, the
+open-loop RMSE and complexity, and the effect against the reference model with a verdict. A
+point decides nothing. The columns: docs/modules.md.
 """
 
 from __future__ import annotations

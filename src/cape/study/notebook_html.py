@@ -1,11 +1,11 @@
 """The HTML copy of an executed notebook, made for reading: papermill's parameters in one line
 each, and a page title that names the notebook.
 
-The workflow passes each notebook the config sections it reads as one JSON string
-(``config_json``), thousands of characters on one line: papermill writes it into the cell it
-injects (tagged ``injected-parameters``), which is the right record in the executed ``.ipynb``
-but a wall at the top of the page a user opens. The HTML copy keeps that cell, as it keeps all
-the code, with each long string replaced by a short line saying what it held. nbconvert runs
+A long parameter (a list of run files, or config sections given as JSON) is thousands of
+characters on one line: papermill writes it into the cell it injects (tagged
+``injected-parameters``), the right record in the executed ``.ipynb`` but a wall at the top of
+the page a user opens. The HTML copy keeps that cell, as it keeps all the code, with each long
+string replaced by a short line saying what it held. nbconvert runs
 :class:`ShortParameters` when the workflow converts a notebook
 (``--HTMLExporter.preprocessors=cape.study.notebook_html.ShortParameters``).
 """

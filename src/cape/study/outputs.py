@@ -3,13 +3,8 @@ kind of study (SPEC §9).
 
 The workflow's rules read these lists for their outputs; the notebooks' ``save`` and
 ``save_table`` refuse a name that is not declared here. So a new figure is one entry below (its
-name and title) plus the notebook cell that draws it, under that title.
-
-A study's kind (``study.studies.<name>.kind`` in the config) says which notebook draws it:
-``closed_loop`` (the default: the learned and ground-truth studies, or one a user adds),
-``bicycle`` (fixed-parameter plants against the paper's study) or ``ablation`` (internal model
-against plant). Every study also gets the failure map, and the whole study the set-up figures
-and the scorecard.
+name and title) plus the notebook cell that draws it, under that title. The kinds of study:
+docs/modules.md.
 """
 
 from __future__ import annotations

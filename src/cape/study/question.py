@@ -1,14 +1,11 @@
 """The ground-truth question in stages (SPEC §10, revision 6): its rows, what a look decides,
 which models get more draws, and which runs a stage needs.
 
-The question compares every pair of ``question.models`` (claimed best first) on the five
-closed-loop metrics of ``cape.study.claims.question_claims``, each learned model inside the
-NMPCs on the ground-truth plant. Stage k gives every model of a row still open ``stages[k]``
-trained draws (the others keep theirs), and each row is decided by the group-sequential test of
-``cape.study.sequential`` at the look of its draws. The first stage's draws have the study's
-seeds; later draws the two-stage optimum from the first look's variance components
-(``later_seeds``). ``cape question`` (cape/cli/question.py) drives Snakemake through the stages;
-this module is the part of it that needs no Snakemake.
+Rows: every pair of ``question.models`` on the five closed-loop metrics of
+``cape.study.claims.question_claims``. Stage k gives every model of a row still open
+``stages[k]`` trained draws; each row is decided by ``cape.study.sequential`` at the look of its
+draws. ``cape question`` (cape/cli/question.py) drives Snakemake through the stages; this module
+is the part of it that needs no Snakemake. Details: docs/modules.md.
 """
 
 from __future__ import annotations

@@ -1,16 +1,10 @@
 """Table 8: the claims of cape.study.claims evaluated on a scope's runs and tables (SPEC §10).
 
-Each pairwise comparison is one row. A closed-loop effect is measured per (training draw,
-disturbance seed), pairing the two models' runs of the same draw index and seed; a model row
-has one value per draw. With two or more draws the row's verdict is about the model class: the
-t-interval over the draws' effects (cape.study.verdicts). Beside it every draw's effect and its
-own verdict over its seeds (a statement about that one trained network), the verdict over the
-draws whose trainings did not fail, and for a row left undecided the draws per model that would
-decide it (``draws needed``). With one draw (the default target) the verdict is about that
-draw's networks, and the table says so (``presented``).
-
-The rows and their columns are ``cape.study.table8``'s. A row from one value or values that do
-not vary is inconclusive unless it is exact (cape.study.verdicts).
+Each pairwise comparison is one row; its columns are ``cape.study.table8``'s. With two or more
+draws the row's verdict is about the model class (cape.study.verdicts); with one draw (the
+default target) it is about that draw's networks, and the table says so (``presented``). A point
+is inconclusive unless its row is exact. How effects are paired and what sits beside the
+verdict: docs/modules.md.
 """
 
 from __future__ import annotations

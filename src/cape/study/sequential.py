@@ -1,22 +1,11 @@
 """Draws added in stages: a group-sequential t-test over training draws (SPEC §10, revision 6).
 
-A row of the question (one pairwise effect, its values one per training draw, each the mean
-over the draw's disturbance seeds) is looked at when each model has n_1 < n_2 < … < n_K trained
-draws (``Design.looks``). At look k the statistic is Student's t of the draws' effects,
-``T_k = mean / (sd / √n_k)``, and two tests share the looks:
-
-- **difference**: ``|T_k| ≥ c_k`` decides the row, ``holds`` or ``contradicted`` by the sign;
-- **equivalence** (two one-sided tests against ±margin): ``(margin − |mean|) / se ≥ e_k``, that
-  is the interval ``mean ± e_k·se`` inside ``(−margin, margin)``: ``equivalent``.
-
-A row stops at its first decision; at the last look an undecided row is ``inconclusive``. The
-boundaries spend the family's α over the rows (Bonferroni: α / rows each, valid whatever the rows'
-dependence) and over the looks (``α·(n_k / n_K)^ρ`` spent by look k). For draws whose effects
-are normal the joint law of (T_1 … T_K) depends on no unknown (t is pivotal), so the boundaries
-are quantiles of that law, found by seeded Monte Carlo (``boundaries``). With one look they are
-Student's t quantiles, and the equivalence test is statsmodels' TOST (a test checks both).
-How often the procedure errs on skewed, integer and unbalanced data: ``cape.study.sequential_
-calibration`` and docs/question.md.
+A row is looked at when each model has n_1 < n_2 < … < n_K trained draws (``Design.looks``). At
+each look a difference test (``holds`` or ``contradicted``) and an equivalence test against
+±margin (``equivalent``) share the looks, with boundaries from ``boundaries``. A row stops at its
+first decision and is ``inconclusive`` if undecided at the last look. The family's α is spent
+over the rows (Bonferroni) and over the looks. The tests in full: docs/modules.md; error rates:
+``cape.study.sequential_calibration`` and docs/question.md.
 """
 
 from __future__ import annotations

@@ -1,27 +1,11 @@
 """How often the staged procedure errs: simulated questions at this study's sizes (SPEC §10).
 
 A simulated row is what the question measures: training draws whose effects vary around the
-true one with spread ``ratio`` (σ_between, in units of the seeds' spread σ_within = 1), each
-draw's seeds around its draw. The first look's draws have ``seeds`` seeds each; later draws get
-the number the procedure chooses from the first look's variance components
-(``cape.study.sequential.seeds_per_draw``), as ``cape question`` does. Three laws:
-
-- ``normal``: both levels normal;
-- ``skewed``: both levels a centred, standardised log-normal (skewness 6.2);
-
-for both, each model's draws and seeds follow the law and a row's effect is the difference of
-the two models' values (draws of two models are separate trainings; seeds are shared), scaled
-so that its spreads are ``ratio`` and 1: with no effect the two models are exchangeable, so the
-effect is symmetric about zero however skewed each model's values are;
-- ``unequal``: the first model's values skewed, the second's normal, of the same mean and
-  spread: models of different shape (one failing now and then, the other not), the hard case
-  for a t-test, whose effect is skewed;
-- ``failures``: integer failure counts per seed (of 33 runs), each model's draw with its own
-  failure rate (exponentially distributed around the model's mean), Poisson per seed; the effect
-  is the difference of counts and ``ratio`` is unused.
-
-Each function returns rates over ``trials`` seeded simulated rows; docs/question.md has the
-table, tests/test_sequential.py holds the acceptance.
+true one with spread ``ratio`` (in units of the seeds' spread), each draw's seeds around its
+draw, later draws with the seeds ``cape.study.sequential.seeds_per_draw`` chooses. The laws:
+``normal``, ``skewed``, ``unequal``, ``failures``. Each function returns rates over ``trials``
+seeded simulated rows. The laws in full: docs/modules.md; the table: docs/question.md; the
+acceptance: tests/test_sequential.py.
 """
 
 from __future__ import annotations

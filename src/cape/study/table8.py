@@ -1,14 +1,11 @@
 """Table 8's rows as a type: ``ClaimRow`` holds one row, with a mapping from each training draw
-to its effect and verdict, and ``frame`` makes the table, the one place its columns are named.
-
-Columns: ``setting``, ``claim``, ``comparison``, ``paper``, ``ours``, ``ci95_low``,
-``ci95_high``, ``estimate``, ``draws``, ``p``, ``margin`` (of no practical difference, where
-its metric has one), ``p equivalence`` (the two one-sided tests against it), ``effect rep<r>``
-and ``verdict rep<r>`` per draw, ``verdict`` (over the draws that trained: the headline),
-``verdict FDR`` (the same, adjusted for the false-discovery rate over the setting's rows),
-``verdict all draws`` (failed trainings included), ``draws needed``, ``why``. The table keeps
-its draws in ``DataFrame.attrs["draws"]`` (``draws_of``), so nothing reads them back out of
-column names.
+to its effect and verdict, and ``frame`` makes the table, the one place its columns are named:
+``setting``, ``claim``, ``comparison``, ``paper``, ``ours``, ``ci95_low``, ``ci95_high``,
+``estimate``, ``draws``, ``p``, ``margin``, ``p equivalence``, ``effect rep<r>`` and
+``verdict rep<r>`` per draw, ``verdict``, ``verdict FDR``, ``verdict all draws``,
+``draws needed``, ``why``. The table keeps its draws in ``DataFrame.attrs["draws"]``
+(``draws_of``), so nothing reads them back out of column names. What the columns hold:
+docs/modules.md.
 """
 
 from __future__ import annotations

@@ -1,27 +1,11 @@
 """Three-valued verdicts from intervals whose unit is the training draw (SPEC §10).
 
-An effect (EPM's lap time minus DDM's, a relative error, a difference of failure counts) is
-measured once per (training draw, disturbance seed), the two models' runs paired by seed. The
-draw is the unit of a claim about a model class: each draw's effect is first averaged over its
-seeds, then the interval is Student's t over the draws' effects with R − 1 degrees of freedom
-(``scipy.stats.ttest_1samp``). With one draw the interval is over that draw's seeds (t, n − 1
-degrees of freedom): a statement about one trained network, never about its class. A single
-value, or values that do not vary, give a point.
-
-Why Student's t and not a bootstrap, with the simulated error rates: docs/study.md (the
-calibration test in tests/test_verdicts.py checks them).
-
-A verdict compares the interval with zero on the paper's side: ``holds`` when it lies wholly
-there, ``contradicted`` when it lies wholly on the other side, ``inconclusive`` when it
-contains zero. An ordering (EPM < DDM < DPM) is each of its pairwise differences: it holds
-when all hold, is contradicted when any is, and is inconclusive otherwise.
-
-Enough evidence: an interval from one value, or from values that do not
-vary, is a point, and a point decides nothing about a random quantity: ``verdict`` calls it
-inconclusive and ``Interval.why`` says why ("one value", "no spread over 3 draws"). Only a row
-declared exact (``exact_verdict``: parameter counts, the deterministic bicycle comparison)
-decides from a point. Each interval carries the two-sided p-value of the same t-test;
-``fdr_verdicts`` adjusts a family of rows for the false-discovery rate (Benjamini–Hochberg).
+An interval is Student's t over the draws' effects, each averaged over its seeds (over the seeds
+with one draw), and carries the t-test's two-sided p-value. ``verdict`` gives ``holds`` or
+``contradicted`` when it lies wholly on the paper's side of zero or wholly on the other, else
+``inconclusive``; an ordering holds when all its pairs hold and is contradicted when any is. A
+point decides nothing unless its row is exact (``exact_verdict``); ``Interval.why`` says why.
+``fdr_verdicts`` adjusts a family of rows (Benjamini–Hochberg). Reasoning: docs/modules.md.
 """
 
 from __future__ import annotations

@@ -1,17 +1,10 @@
 """CAPE's own reference raceline (SPEC §2): one minimum-curvature QP and a friction-limited
 speed profile.
 
-The BayesRace racelines pass within 2.4 mm of the ETHZMobil edge, so a feedback controller
-tracking them with centimetres of error leaves the track. CAPE therefore computes, for any
-track, the classic minimum-curvature path: lateral offsets α_i along the centre line's normals
-at equally spaced nodes, chosen by one bounded least-squares problem (a QP) that minimises the
-sum of squared second differences of the path points, |α_i| ≤ width/2 − margin; then a
-periodic spline through the points. The curvature is deliberately not iterated to
-convergence: the exact Σκ² optimum swings wide round every hairpin and is slower.
-
-The speed profile is the usual forward–backward pass over two laps: a lateral limit from the
-tyres' peak forces, acceleration from the drivetrain law at full throttle, braking at the
-lowest throttle command.
+For any track: lateral offsets along the centre line's normals at equally spaced nodes, from one
+bounded least-squares problem (|α_i| ≤ width/2 − margin), then a periodic spline through the
+points; the speed profile is a forward–backward pass over two laps. Why not the BayesRace
+racelines, and why the curvature is not iterated: docs/modules.md.
 """
 
 from __future__ import annotations
