@@ -29,7 +29,6 @@ and that round is then dropped from the medians).
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 import statistics
 import subprocess
@@ -44,23 +43,21 @@ from _common import add_config, require_file, run, study_config  # a sibling mod
 from cape.errors import CapeError
 from cape.layout import paths
 from cape.layout.record import read_timing
-
-SECTIONS = ("tracks", "data", "reference", "disturbances", "rollout", "models")
-"""What the workflow's rollout rule passes (workflow/rules/common.smk, rollout_config_json)."""
+from cape.workflow import specs
 
 
 def job_command(config: dict[str, Any], controller: str, internal: str, eta: str, out: Path,
                 replicate: int) -> list[str]:  # fmt: skip
     """The command line the rollout rule runs for one run on the ground-truth plant, the
     internal model of draw ``replicate`` where the workflow keeps it (``paths.model_dir``)."""
-    sections = {k: config[k] for k in SECTIONS}
-    sections["controllers"] = {controller: config["controllers"][controller]}
     learned = controller != "pid"
+    plant, used = "truth", internal if learned else "truth"
+    spec = specs.spec_file("rollout", specs.rollout(config, controller, plant, used))
     command = ["cape", "rollout", "--study", "truth", "--plant", "truth", "--controller",
-               controller, "--internal", internal if learned else "truth", "--eta", eta,
+               controller, "--internal", used, "--eta", eta,
                "--seed", "0", "--replicate", str(replicate), "--out", str(out), "--raceline",
                paths.raceline(config["reference"]["track"]),
-               "--config-json", json.dumps(sections, sort_keys=True)]  # fmt: skip
+               "--spec", spec]  # fmt: skip
     if learned:
         command += ["--model", f"{internal}={paths.model_dir(internal, replicate)}"]
     return command

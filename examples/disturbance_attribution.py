@@ -19,12 +19,14 @@ from pathlib import Path
 from cape.closedloop.disturbances import SOURCES
 from cape.closedloop.setup import build_run
 from cape.config import load_config
+from cape.specs.run import RunSpec
 
 
 def outcome(config: dict, plant: str, controller: str, eta: float, seed: int) -> str:
     """'lap' or the step at which the run failed."""
     models = Path("results/models/rep0")
-    result = build_run(config, plant, controller, eta, seed, None, models, None)()
+    spec = RunSpec.from_config(config, controller)
+    result = build_run(spec, plant, eta, seed, None, models, None)()
     return "lap" if result.metrics["success"] else f"step {result.metrics['steps']}"
 
 

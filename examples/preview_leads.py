@@ -16,6 +16,7 @@ import math
 
 from cape.closedloop.setup import build_run
 from cape.config import load_config
+from cape.specs.run import RunSpec
 
 
 def main() -> None:
@@ -38,8 +39,9 @@ def main() -> None:
                 for seed in seeds:
                     config = copy.deepcopy(base)
                     config["controllers"][args.controller]["lead"] = lead
-                    run = build_run(config, plant, args.controller, float(eta), seed, None,
-                                    args.models, args.raceline)  # fmt: skip
+                    spec = RunSpec.from_config(config, args.controller)
+                    run = build_run(spec, plant, float(eta), seed, None, args.models,
+                                    args.raceline)  # fmt: skip
                     metrics = run().metrics
                     laps += bool(metrics["success"])
                     if metrics["success"]:

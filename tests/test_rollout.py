@@ -313,6 +313,22 @@ def test_cli_rollout_rejects_unknown_names(capsys) -> None:
     assert "--plant gpt: expected truth" in capsys.readouterr().err
 
 
+def test_the_attribution_example_builds_its_runs_as_cape_rollout_does(config, track_dir) -> None:
+    """examples/disturbance_attribution.py runs through the same run builder (its call kept in
+    step with build_run's signature): the printed PID leaves BayesRace's long line."""
+    import copy
+    import importlib.util
+
+    path = Path(__file__).parents[1] / "examples" / "disturbance_attribution.py"
+    spec = importlib.util.spec_from_file_location("disturbance_attribution", path)
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    cfg = copy.deepcopy(config)
+    cfg["reference"]["line"] = "bayesrace_long"
+    cfg["tracks"]["dir"] = str(track_dir)
+    assert example.outcome(cfg, "truth", "pid", 0.0, 0).startswith("step ")
+
+
 def test_bayesrace_long_line_is_selectable(config, track_dir) -> None:
     """The paper's setting runs through the same code; PID cannot lap it (SPEC §2)."""
     import copy

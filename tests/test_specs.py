@@ -74,3 +74,25 @@ def test_a_notebooks_parameters_are_strings_as_papermill_r_passes_them() -> None
     text = specs.notebook_parameters({"study": "learned", "replicates": [0, 1], "eta": 1.0})
     assert json.loads(text) == {"study": "learned", "replicates": "0,1", "eta": "1.0"}
     assert list(json.loads(text)) == ["study", "replicates", "eta"]
+
+
+def test_a_grid_without_its_sections_is_one_error_and_a_notebook_may_lack_them(config) -> None:
+    from cape.specs.notebook import NotebookSpec
+    from cape.specs.study import StudySpec
+
+    sections = {"study": config["study"], "controllers": config["controllers"]}
+    with pytest.raises(CapeError, match="lacks the `disturbances` section"):
+        StudySpec.from_config(sections)
+    notebook = NotebookSpec.from_config(sections)
+    assert notebook.study is not None and notebook.study.replicates == 1
+    assert notebook.study.studies["learned"].controllers == tuple(
+        config["study"]["studies"]["learned"]["controllers"]
+    )
+
+
+def test_an_unwritable_spec_folder_is_one_line(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "results").mkdir()
+    (tmp_path / "results" / "specs").write_text("a file where the folder belongs")
+    with pytest.raises(CapeError, match=r"results/specs.*cannot write the job's specification"):
+        specs.spec_file("train", '{"a": 1}')

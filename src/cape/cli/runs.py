@@ -116,10 +116,10 @@ def cmd_rollout(args: argparse.Namespace) -> None:
     from cape.storage.io import atomic_folder, check_replaceable
 
     imported = time.perf_counter()
-    spec = RunSpec.from_config(_config(args), args.controller)
     run = RunId(args.study, args.plant, args.internal or args.plant, args.controller, args.eta,
                 args.seed, args.replicate)  # fmt: skip
     check_run(run)
+    spec = RunSpec.from_config(_config(args), args.controller)
     out = Path(args.out)
     _claim(args, _run_output(out, run))  # before the lap, not after it
     check_replaceable(out, RUN_FILES, RUN_WHAT)

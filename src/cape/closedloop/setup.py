@@ -218,7 +218,7 @@ def build_run(
         what = json.dumps([controller_name, cls.__module__, cls.__qualname__, entry], default=str)
 
         def check() -> None:
-            validate_settings(cls, controller_name, entry, "the job specification")
+            validate_settings(cls, controller_name, entry, "--spec/--config-json")
 
         checked_once(what, check, code)
     default_internal = str(plant_parsed)

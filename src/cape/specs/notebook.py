@@ -32,7 +32,7 @@ class NotebookSpec:
             models=MappingProxyType(dict(config.get("models") or {})),
             controllers=MappingProxyType(dict(config.get("controllers") or {})),
             disturbances=MappingProxyType(dict(config.get("disturbances") or {})),
-            study=StudySpec.from_config(config) if "study" in config else None,
+            study=StudySpec.from_config(config, partial=True) if "study" in config else None,
             reference=ReferenceSpec.from_config(config) if has_reference else None,
             health=MappingProxyType(dict((config.get("training") or {}).get("health") or {})),
             scorecard=config.get("scorecard"),

@@ -63,13 +63,17 @@ class StudySpec:
     models: Mapping[str, Mapping[str, Any]]
 
     @classmethod
-    def from_config(cls, config: Mapping[str, Any]) -> StudySpec:
-        """From a validated config, or the sections a job reads (``study`` and
-        ``controllers`` at least): without ``disturbances``, ``training`` or ``models``, no
-        η, one draw and no model entries."""
+    def from_config(cls, config: Mapping[str, Any], partial: bool = False) -> StudySpec:
+        """From a validated config, or the sections a job reads: ``study``, ``controllers``,
+        ``disturbances`` and ``training``, each missing one a ``CapeError``; ``partial`` (a
+        notebook's sections): without ``disturbances`` or ``training``, no η and one draw."""
         study = section(config, "study")
-        etas = (config.get("disturbances") or {}).get("eta", [])
-        training = config.get("training") or {}
+        if partial:
+            etas = (config.get("disturbances") or {}).get("eta", [])
+            training = config.get("training") or {}
+        else:
+            etas = section(config, "disturbances").get("eta", [])
+            training = section(config, "training")
         cap = training.get("max_trainings")
         return cls(
             studies=MappingProxyType(

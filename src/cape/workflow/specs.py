@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from cape.config import PRESENTATION_KEYS
+from cape.errors import CapeError
 from cape.layout import paths
 from cape.layout.names import models_read
 from cape.storage.io import write_text
@@ -46,11 +47,20 @@ def validate(config: Config, source: str) -> None:
 
 
 def spec_file(job: str, text: str) -> str:
-    """The path of ``job``'s specification ``text``, written once (atomically) if absent."""
+    """The path of ``job``'s specification ``text``, written once (atomically) if absent.
+
+    Snakemake asks for it while it plans, so a dry run writes it too; ``CapeError`` in one
+    line when it cannot be written."""
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
     path = Path(paths.SPEC.format(job=job, digest=digest))
-    if not path.is_file() or path.read_text() != text:
-        write_text(path, text)
+    try:
+        if not path.is_file() or path.read_text() != text:
+            write_text(path, text)
+    except OSError as exc:
+        raise CapeError(
+            f"{path}: cannot write the job's specification ({exc.strerror or exc}); the workflow "
+            f"writes each job's settings under {paths.SPECS}/: make that folder writable"
+        ) from None
     return str(path)
 
 
