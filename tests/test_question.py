@@ -67,6 +67,9 @@ def test_the_question_runs_in_stages_resumes_and_settles_a_row(work: Path) -> No
     assert not left.stdout.strip(), "Snakemake outlived the command"
     jobs = [p for p in Path("/proc").glob("[0-9]*/cwd") if _resolves_to(p, work)]
     assert not jobs, "a job of Snakemake's outlived the command"
+    question = work / "results" / "question"
+    stopped = json.loads((question / "looks.json").read_text())
+    assert stopped["running"]["stage"] == 2 and stopped["running"]["wall_s"] > 0  # kept
     first_runs = sorted((work / "results" / "runs").rglob("metrics.json"))
     stamps = {p: p.stat().st_mtime_ns for p in first_runs}
     assert any("rep0" in str(p) for p in first_runs)
@@ -76,9 +79,10 @@ def test_the_question_runs_in_stages_resumes_and_settles_a_row(work: Path) -> No
     assert "stage 2: " in again.stdout and "report in" in again.stdout
     assert all(p.stat().st_mtime_ns == t for p, t in stamps.items())  # nothing redone
 
-    question = work / "results" / "question"
     stages = json.loads((question / "looks.json").read_text())["looks"]
     assert [s["look at draws"] for s in stages] == [2, 3]
+    assert stages[1]["wall_s"] > stopped["running"]["wall_s"]  # the stopped part counted too
+    assert (question / "logs" / "stage2.log").read_text().count("\n--- ") >= 1  # both attempts
     looks = pd.read_csv(question / "looks.csv")
     final = looks.sort_values("look").groupby(["claim", "comparison"]).tail(1)
     assert (final["decision"] == "equivalent").any(), final.to_string()

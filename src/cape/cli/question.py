@@ -115,8 +115,9 @@ def _snakemake(
         cmd += ["--cores", cores]
     cmd += list(extra)
     log.parent.mkdir(parents=True, exist_ok=True)
-    with open(log, "w", buffering=1) as out:  # line by line: `tail -f` follows it
-        out.write("$ " + shlex.join(cmd) + "\n")
+    # appended, line by line: a resumed stage keeps its earlier attempts; `tail -f` follows it
+    with open(log, "a", buffering=1) as out:
+        out.write(f"--- {time.strftime('%Y-%m-%d %H:%M:%S')}\n$ " + shlex.join(cmd) + "\n")
         out.flush()
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}  # its progress as it happens, not at exit
         # its own session: stopping the command (SIGTERM, Ctrl-C) stops Snakemake and its jobs
@@ -240,6 +241,10 @@ def cmd_question(args: argparse.Namespace) -> None:
     seeds_later = settings.seeds
     earlier = _earlier(settings)  # a resumed run keeps its seeds, adds to its wall times
     walls_before = {int(r["stage"]): float(r["wall_s"]) for r in earlier.get("looks", [])}
+    if isinstance(earlier.get("running"), dict):  # a stage stopped before its look
+        walls_before.setdefault(
+            int(earlier["running"]["stage"]), float(earlier["running"]["wall_s"])
+        )
     seeds_said = f"the study's {settings.seeds} (the costs were not measured)"
     started = time.perf_counter()
     stages: list[dict[str, Any]] = []
@@ -272,7 +277,15 @@ def cmd_question(args: argparse.Namespace) -> None:
         )
         tick = time.perf_counter()
         log = Path(paths.QUESTION, "logs", f"stage{k + 1}.log")
-        _snakemake(stage_files, args.cores, extra, log, f"stage {k + 1}")
+        try:
+            _snakemake(stage_files, args.cores, extra, log, f"stage {k + 1}")
+        except BaseException:  # stopped or failed: its wall time so far is kept for the resume
+            spent = time.perf_counter() - tick + walls_before.get(k + 1, 0.0)
+            said = seeds_later if k > 0 else earlier.get("later_seeds")
+            state = {"question": _identity(settings), "later_seeds": said, "looks": stages,
+                     "running": {"stage": k + 1, "wall_s": round(spent, 1)}}  # fmt: skip
+            write_text(paths.QUESTION_STATE, json.dumps(state, indent=1, default=str))
+            raise
         runs = report.read_stage_runs(settings, plan)
         evaluate(runs, states, design, k)
         cost = report.costs(settings, plan)

@@ -102,7 +102,7 @@ def _rollout_arguments(p: argparse.ArgumentParser) -> None:
         "--replicate",
         default=0,
         type=int,
-        help="the training replicate of the models given by --model (metrics.json; SPEC §4)",
+        help="the draw of the models given by --model (metrics.json's replicate; SPEC §4)",
     )
     _add_config_args(p)
 

@@ -26,7 +26,7 @@ def _aggregate_arguments(p: argparse.ArgumentParser) -> None:
         type=int,
         nargs="+",
         metavar="R",
-        help="only the grid's runs of these training replicates (default: all)",
+        help="only the grid's runs of these draws (default: all)",
     )
     p.add_argument("--out", required=True, help="the tidy table of runs (.parquet)")
     p.add_argument("--summary", required=True, help="the per-cell summary (.parquet)")
