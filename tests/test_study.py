@@ -99,7 +99,7 @@ def test_a_run_two_studies_ask_for_is_computed_once_and_read_by_both(tmp_path: P
                      "eta": ["1"]},
     }}  # fmt: skip
     spec = StudySpec.from_config(
-        {"study": config, "controllers": {}, "disturbances": {"eta": ["0", "1"]}}
+        {"study": config, "controllers": {}, "disturbances": {"eta": ["0", "1"]}, "training": {}}
     )
     runs = study_runs(spec, lambda controller: controller == "nmpc")
     assert len(runs) == 4  # learned at η 0 and 1, the ablation's two internal models at η 1

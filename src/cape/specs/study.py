@@ -68,6 +68,7 @@ class StudySpec:
         ``disturbances`` and ``training``, each missing one a ``CapeError``; ``partial`` (a
         notebook's sections): without ``disturbances`` or ``training``, no η and one draw."""
         study = section(config, "study")
+        controllers = section(config, "controllers")
         if partial:
             etas = (config.get("disturbances") or {}).get("eta", [])
             training = config.get("training") or {}
@@ -88,7 +89,7 @@ class StudySpec:
             etas=tuple(etas),
             replicates=int(training.get("replicates", 1)),
             max_trainings=None if cap is None else int(cap),
-            controllers=MappingProxyType(dict(section(config, "controllers"))),
+            controllers=MappingProxyType(dict(controllers)),
             models=MappingProxyType(dict(config.get("models") or {})),
         )
 
