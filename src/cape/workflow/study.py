@@ -11,7 +11,7 @@ from __future__ import annotations
 import shlex
 import sys
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 from cape.bytecode import precompile_package
@@ -352,18 +352,7 @@ class StudyWorkflow:
     def run_outputs(self, runs: Iterable[RunId]) -> list[str]:
         """The files of every run in ``runs``, each once."""
         return [
-            path
-            for run in dict.fromkeys(runs)
-            for path in self.outputs(
-                "rollout",
-                study=run.study,
-                replicate=run.replicate,
-                plant=run.plant,
-                internal=run.internal,
-                controller=run.controller,
-                eta=run.eta,
-                seed=run.seed,
-            )
+            path for run in dict.fromkeys(runs) for path in self.outputs("rollout", **asdict(run))
         ]
 
     def model_outputs(self, replicates: Iterable[int]) -> list[str]:
