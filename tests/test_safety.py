@@ -452,8 +452,12 @@ def test_a_killed_training_resumes_to_the_same_bytes(
     assert not list(killed.glob("checkpoint-*.pt"))  # done: the checkpoint is gone
 
     # another config (here: another seed) never resumes that checkpoint, nor removes it
+    from cape.cli.models import _model_output
+    from cape.storage.ownership import claimed
+
     other = tmp_path / "other"
-    other.mkdir()
+    with claimed([_model_output(other, "dpm", None)], "test"):  # a training's folder, as
+        other.mkdir()  # `cape train` claims it before it trains
     shutil.copy(saved, other / saved.name)
     assert main(train(other, "--seed", "1", "--epochs", "1")[1:]) == 0
     assert "resumed" not in capsys.readouterr().out
