@@ -320,7 +320,7 @@ def test_a_run_is_tied_to_its_replicates_networks(
     out = runs / "learned" / "rep0" / "dpm" / "dpm" / "pid" / "eta0" / "seed0"
     base = rollout_args(setup, out, plant="dpm", study="learned")[1:]
     misfiled = cape(*base, "--replicate", "1", "--model", f"dpm={folder}")
-    one_message(misfiled, "--replicate 1: the dpm model in", "is replicate 0's")
+    one_message(misfiled, "--replicate 1: the dpm model in", "is draw 0's")
     never = cape(*base, "--replicate", "5", "--models-dir", str(models / "rep5"))
     one_message(never, "rep5/dpm/meta.json: missing")
     assert not out.exists()
@@ -375,7 +375,7 @@ def test_a_model_table_is_tied_to_its_replicates_networks(
         misfiled = cape(*command, "--model", f"dpm={models / 'rep1' / 'dpm'}", "--out", str(csv),
                         *config)  # fmt: skip
         assert misfiled.returncode == 0, misfiled.stderr
-        with pytest.raises(CapeError, match="computed from replicate 1's network") as refused:
+        with pytest.raises(CapeError, match="computed from draw 1's network") as refused:
             read_replicate_tables([0], str(csv), models)
         assert str(csv) in str(refused.value) and f"snakemake --cores 2 {csv}" in str(refused.value)
     retrain = ["train", "--model", "dpm", "--data", str(train_data), "--out",
@@ -384,7 +384,7 @@ def test_a_model_table_is_tied_to_its_replicates_networks(
     assert cape(*openloop, "--model", f"dpm={models / 'rep0' / 'dpm'}", "--out",
                 str(tables / "table04_openloop_rmse.csv"), *config).returncode == 0  # fmt: skip
     assert cape(*retrain).returncode == 0
-    with pytest.raises(CapeError, match=r"replicate 0's is .*rep0/dpm .*stale"):
+    with pytest.raises(CapeError, match=r"draw 0's is .*rep0/dpm .*stale"):
         read_replicate_tables([0], str(tables / "table04_openloop_rmse.csv"), models)
 
 

@@ -479,7 +479,7 @@ def test_notebooks_with_nothing_to_draw_say_so_and_write_their_outputs(tmp_path:
     rep1, paper = str(work / "config" / "rep1.yaml"), str(work / "config" / "paper.yaml")
     result = _snakemake("all", *common, rep1, timeout=1500)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
-    why = "this target holds no run of the learned study, which runs for training replicate(s) 1"
+    why = "this target holds no run of the learned study, which runs for training draw(s) 1"
     for name, study in (("learned", "learned"), ("bicycle", "bicycle"), ("ablation", "ablation")):
         cells = json.loads((work / f"results/notebooks/{name}.ipynb").read_text())["cells"]
         printed = "".join("".join(o.get("text", "")) for c in cells for o in c.get("outputs", []))

@@ -187,8 +187,8 @@ def _check_grid(config: dict[str, Any], source: str) -> None:
         for r in [] if chosen == "all" else chosen:
             if r >= replicates:
                 raise CapeError(
-                    f"{source}: field `study.studies.{study}.replicates` names replicate {r}, "
-                    f"but `training.replicates` is {replicates} (replicates 0 … "
+                    f"{source}: field `study.studies.{study}.replicates` names draw {r}, "
+                    f"but `training.replicates` is {replicates} (draws 0 … "
                     f"{replicates - 1}); drop it or raise `training.replicates`"
                 )
     for i, name in enumerate(config.get("training", {}).get("health", {}).get("models", [])):

@@ -60,7 +60,7 @@ def check_run(run: RunId) -> float:
     if run.seed < 0:
         raise CapeError(f"--seed {run.seed}: a seed is a non-negative integer")
     if run.replicate < 0:
-        raise CapeError(f"--replicate {run.replicate}: a replicate is a non-negative integer")
+        raise CapeError(f"--replicate {run.replicate}: a draw is a non-negative integer")
     check_name(run.study, "--study")
     return eta
 

@@ -49,9 +49,9 @@ def run_models(
         if trained is not None and trained != replicate:  # a training of no draw: the user's
             draw = paths.model_dir(model, replicate)
             raise CapeError(
-                f"--replicate {replicate}: the {model} model in {folder} is replicate {trained}'s, "
+                f"--replicate {replicate}: the {model} model in {folder} is draw {trained}'s, "
                 "so the run "
-                f"would carry its numbers under replicate {replicate}; pass --model "
+                f"would carry its numbers under draw {replicate}; pass --model "
                 f"{model}={draw} (made by `snakemake --cores 2 {draw}/{paths.NETWORK}`, with "
                 f"training.replicates above {replicate})"
             )

@@ -83,8 +83,8 @@ def check_models(metrics: Mapping[str, Any], folder: Path, current: CurrentModel
         if used.get("replicate") != replicate or used.get("weights_sha256") != digest:
             found = str(used.get("weights_sha256"))[:12]
             raise CapeError(
-                f"{folder}: its {role} model {used['model']} was {used['folder']} (replicate "
-                f"{used.get('replicate')}, weights {found}…), but replicate {replicate}'s is "
+                f"{folder}: its {role} model {used['model']} was {used['folder']} (draw "
+                f"{used.get('replicate')}, weights {found}…), but draw {replicate}'s is "
                 f"{meta.parent} (weights {digest[:12]}…, {meta}); {fix}"
             )
 

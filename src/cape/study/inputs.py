@@ -28,8 +28,8 @@ def read_replicate_tables(
     items = [str(p) for p in _items(table_paths)]
     if len(draws) != len(items):
         raise CapeError(
-            f"{len(items)} table(s) for {len(draws)} replicate(s) ({', '.join(map(str, draws))}):"
-            " give one table per replicate, in the same order"
+            f"{len(items)} table(s) for {len(draws)} draw(s) ({', '.join(map(str, draws))}):"
+            " give one table per draw, in the same order"
         )
     tables = {}
     for replicate, item in zip(draws, items, strict=True):
@@ -66,8 +66,8 @@ def check_table_models(table: pd.DataFrame, path: str, replicate: int, model_roo
         made, found = row.replicate, str(row.weights_sha256)
         if pd.isna(made) or int(made) != replicate or found != digest:
             raise CapeError(
-                f"{path}: its {row.model} row was computed from replicate {made}'s network "
-                f"(weights {found[:12]}…), but replicate {replicate}'s is {folder} (weights "
+                f"{path}: its {row.model} row was computed from draw {made}'s network "
+                f"(weights {found[:12]}…), but draw {replicate}'s is {folder} (weights "
                 f"{digest[:12]}…); {fix}"
             )
 

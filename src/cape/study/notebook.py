@@ -54,13 +54,13 @@ def nothing_here(runs: pd.DataFrame, study_spec: StudySpec | None, study: str) -
     if grid is None:
         return f"the config has no study {study!r}"
     which = (
-        "every training replicate"
+        "every training draw"
         if grid.replicates == "all"
-        else "training replicate(s) " + ", ".join(str(r) for r in grid.replicates)
+        else "training draw(s) " + ", ".join(str(r) for r in grid.replicates)
     )
     return (
         f"this target holds no run of the {study} study, which runs for {which}; the default "
-        "target reads replicate 0, `snakemake --cores 2 replicates` reads every replicate"
+        "target reads draw 0, `snakemake --cores 2 replicates` reads every draw"
     )
 
 
