@@ -96,3 +96,12 @@ def test_an_unwritable_spec_folder_is_one_line(tmp_path: Path, monkeypatch) -> N
     (tmp_path / "results" / "specs").write_text("a file where the folder belongs")
     with pytest.raises(CapeError, match=r"results/specs.*cannot write the job's specification"):
         specs.spec_file("train", '{"a": 1}')
+
+
+def test_a_file_of_yours_at_a_specs_name_is_never_replaced(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    path = Path(specs.spec_file("train", '{"a": 1}'))
+    path.write_text("my notes")
+    with pytest.raises(CapeError, match="did not write; move it away"):
+        specs.spec_file("train", '{"a": 1}')
+    assert path.read_text() == "my notes"

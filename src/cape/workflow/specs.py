@@ -54,8 +54,13 @@ def spec_file(job: str, text: str) -> str:
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
     path = Path(paths.SPEC.format(job=job, digest=digest))
     try:
-        if not path.is_file() or path.read_text() != text:
+        if not path.exists():
             write_text(path, text)
+        elif not path.is_file() or path.read_text(errors="replace") != text:
+            raise CapeError(
+                f"{path}: holds something other than the job specification named by this "
+                "digest, which the workflow did not write; move it away and run again"
+            )
     except OSError as exc:
         raise CapeError(
             f"{path}: cannot write the job's specification ({exc.strerror or exc}); the workflow "
