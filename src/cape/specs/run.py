@@ -8,6 +8,7 @@ from typing import Any
 
 from cape.config import section
 from cape.errors import CapeError
+from cape.specs.tracks import TracksSpec
 
 
 @dataclass(frozen=True)
@@ -27,16 +28,16 @@ class ReferenceSpec:
     @classmethod
     def from_config(cls, config: Mapping[str, Any]) -> ReferenceSpec:
         settings = section(config, "reference")
-        tracks = section(config, "tracks")
+        tracks = TracksSpec.from_config(config)
         name = settings["track"]
-        entry = tracks["catalogue"][name]
+        entry = tracks.catalogue[name]
         return cls(
             track=name,
             line=settings["line"],
             settings=settings,
-            tracks_dir=tracks["dir"],
-            prefix=entry["prefix"],
-            width=float(entry["width"]),
+            tracks_dir=tracks.dir,
+            prefix=entry.prefix,
+            width=entry.width,
             ts=float(section(config, "data")["ts"]),
         )
 
