@@ -12,15 +12,16 @@ from cape.study.outputs import WHOLE_STUDY_NOTEBOOKS
 from cape.workflow import specs
 from cape.workflow.study import NOTEBOOKS as DECLARED
 from cape.workflow.study import RUN_FOLDER, RUN_LOG, RUN_STEM, TABLE_EXTS
-from cape.workflow.study import StudyWorkflow, prepare, run_notebook
+from cape.workflow.study import StudyWorkflow, prepare, refusals, run_notebook
 
-prepare(config, workflow.is_main_process)
-W = StudyWorkflow.from_config(
-    config,
-    # a target lists every file of a job: Snakemake rebuilds a deleted file only if asked for
-    outputs=lambda rule, **wildcards: [str(p).format(**wildcards) for p in getattr(rules, rule).output],
-    health=lambda model, seed: checkpoints.training_health.get(model=model, training_seed=seed).output[0],
-)
+with refusals():  # a bad config value: its one-line reason, no traceback
+    prepare(config, workflow.is_main_process)
+    W = StudyWorkflow.from_config(
+        config,
+        # a target lists every file of a job: Snakemake rebuilds a deleted file only if asked for
+        outputs=lambda rule, **wildcards: [str(p).format(**wildcards) for p in getattr(rules, rule).output],
+        health=lambda model, seed: checkpoints.training_health.get(model=model, training_seed=seed).output[0],
+    )
 SCOPES = W.scopes
 CAPE_ENV = "../envs/cape.yaml"  # every rule's software environment for `--sdm conda`
 NOTEBOOKS = os.path.join(workflow.basedir, "notebooks")  # beside the Snakefile, whatever -d is

@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import shlex
 import sys
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from typing import Any
 
 from cape.bytecode import precompile_package
 from cape.controllers import controller_class
+from cape.errors import CapeError, one_line
 from cape.layout import paths
 from cape.layout.names import TRUTH, PlantName, plant_names
 from cape.layout.runs import RunId
@@ -34,6 +36,7 @@ from cape.study.question_plan import Plan, QuestionSettings, stage_runs
 from cape.study.stale import missing_runs
 from cape.tracks.manifest import BAYESRACE_FILES
 from cape.workflow import specs
+from cape.workflow.scheduler import bound_wakeup_timers
 
 SOURCE = "config (config/config.yaml and any --configfile)"
 TABLE_EXTS = (".csv", ".md", ".tex")
@@ -51,11 +54,26 @@ Health = Callable[[str, int], str]
 def prepare(config: Mapping[str, Any], main_process: bool) -> None:
     """Before any rule: in the main process, remove the locks of runs proven ended
     (cape/storage/locks.py) and write the package's bytecode once (cape/bytecode.py); everywhere,
-    validate the config (cape.workflow.specs.validate)."""
+    validate the config (cape.workflow.specs.validate) and bound the scheduler's wake-up timers
+    (cape/workflow/scheduler.py)."""
+    bound_wakeup_timers()
     if main_process:
         clear_stale_locks(".", report=lambda message: print(message, file=sys.stderr))
         precompile_package()
     specs.validate(config, SOURCE)
+
+
+@contextmanager
+def refusals() -> Iterator[None]:
+    """A ``CapeError`` raised while Snakemake reads the workflow (a bad config value, a grid it
+    cannot build) as its one-line reason on stderr and exit status 1. Snakemake would print
+    any exception, ``WorkflowError`` included, with the ``File "…"`` lines of its traceback,
+    which tell a user who gave a bad value nothing; a ``SystemExit`` it lets through."""
+    try:
+        yield
+    except CapeError as error:
+        print(f"error: {one_line(str(error))}", file=sys.stderr)  # as `cape` says it
+        raise SystemExit(1) from None
 
 
 @dataclass(frozen=True)
