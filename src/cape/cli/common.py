@@ -7,7 +7,9 @@ import time
 STARTED = time.perf_counter()  # as the process starts: a rollout reports its own start-up
 
 import argparse  # noqa: E402
+import math  # noqa: E402
 from collections.abc import Callable  # noqa: E402
+from dataclasses import dataclass  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
@@ -24,10 +26,150 @@ def command(name: str, help: str, arguments: Arguments) -> Callable[[Command], C
     """Register ``func`` as ``cape NAME``, with the arguments ``arguments`` adds."""
 
     def register(func: Command) -> Command:
-        COMMANDS[name] = (help, arguments, func)
+        COMMANDS[name] = (help, _noting_bounds(arguments), _checking_bounds(func))
         return func
 
     return register
+
+
+# --- the bounds of numeric options --------------------------------------------------------------
+# An option that overrides a config key takes the key's bounds from the packaged config schema
+# (``bounded``), so the two can never differ; the others have the bounds below. Each is checked
+# right after parsing, before a command reads its config, claims its outputs or does any work: a
+# value outside is one line and exit status 2, as a bad config value is.
+
+
+@dataclass(frozen=True)
+class Limits:
+    """What an option accepts: ``kind`` (int or float, always finite), ``least`` ≤ value ≤
+    ``most``, ``above`` < value < ``below`` (None: no such bound), and where the bounds are
+    from (``why``, as a message shows it)."""
+
+    kind: type
+    why: str
+    least: float | None = None
+    most: float | None = None
+    above: float | None = None
+    below: float | None = None
+
+    def refusal(self, value: float) -> str | None:
+        """None if ``value`` is within, else what to give instead."""
+        low = (f"of at least {self.least}" if self.least is not None
+               else f"above {self.above}" if self.above is not None else None)  # fmt: skip
+        high = (f"of at most {self.most}" if self.most is not None
+                else f"below {self.below}" if self.below is not None else None)  # fmt: skip
+        if not math.isfinite(value):  # NaN and ±inf: no bound admits them
+            said = " and ".join(s for s in (low, high) if s) or "that is finite"
+        elif (self.least is not None and value < self.least) or (
+            self.above is not None and value <= self.above
+        ):
+            said = low
+        elif (self.most is not None and value > self.most) or (
+            self.below is not None and value >= self.below
+        ):
+            said = high
+        else:
+            return None
+        return f"give a number {said} ({self.why})"
+
+
+class Bound:
+    """An option's ``type=``: it parses the number (of the kind its limits say); the limits
+    themselves are checked after parsing (``_checking_bounds``), where a refusal is a
+    ``CapeError``. ``limits`` is called only when an option is given (it may read the schema)."""
+
+    def __init__(self, limits: Callable[[], Limits]) -> None:
+        self.limits = limits
+
+    def __call__(self, text: str) -> float:
+        kind = self.limits().kind
+        try:
+            return kind(text)
+        except (TypeError, ValueError):  # argparse's own words for a value that is no number
+            said = repr(text) if len(text) <= 40 else _shown(text)
+            raise argparse.ArgumentTypeError(f"invalid {kind.__name__} value: {said}") from None
+
+
+def schema_limits(key: str) -> Limits:
+    """The bounds of config key ``key`` (dotted; ``*`` any name, e.g. ``models.*.train.epochs``)
+    in the packaged config schema: ``minimum``, ``maximum`` and their exclusive forms."""
+    from cape import schemas
+
+    node: Any = schemas.load_schema(schemas.CONFIG)
+    for part in key.split("."):
+        node = node["additionalProperties"] if part == "*" else node["properties"][part]
+    types = node["type"] if isinstance(node["type"], list) else [node["type"]]
+    return Limits(
+        int if "integer" in types else float,
+        f"the bound of {key.replace('*', '<name>')} in the config schema",
+        least=node.get("minimum"),
+        most=node.get("maximum"),
+        above=node.get("exclusiveMinimum"),
+        below=node.get("exclusiveMaximum"),
+    )
+
+
+def bounded(key: str) -> Bound:
+    """The ``type=`` of an option that overrides config key ``key``: the key's bounds."""
+    return Bound(lambda: schema_limits(key))
+
+
+def _draw_limits() -> Limits:
+    count = schema_limits("training.replicates").most
+    return Limits(int, f"a draw is below training.replicates, at most {count} in the config "
+                  "schema", least=0, below=count)  # fmt: skip
+
+
+DRAW = Bound(_draw_limits)
+"""A draw (training replicate) r: 0 ≤ r < the most ``training.replicates`` allows (a config
+names no draw at or beyond its ``training.replicates``)."""
+SEED = Bound(lambda: Limits(int, "NumPy's seeds are 32-bit", least=0, most=2**32 - 1))
+"""A run's seed (no config key: the grid's are 0 … study.seeds − 1): NumPy's 32-bit range."""
+CORES = Bound(lambda: Limits(int, "a count of cores", least=1, most=1_000_000))
+"""A number of cores (no config key)."""
+
+
+def _bounded_actions(parser: argparse.ArgumentParser) -> list[tuple[str, str, Bound]]:
+    return [(a.option_strings[0] if a.option_strings else a.dest, a.dest, a.type)
+            for a in parser._actions if isinstance(a.type, Bound)]  # fmt: skip
+
+
+def _noting_bounds(arguments: Arguments) -> Arguments:
+    """``arguments``, then the bounded options noted in the parser's defaults (``_bounds``)."""
+
+    def add(parser: argparse.ArgumentParser) -> None:
+        arguments(parser)
+        parser.set_defaults(_bounds=_bounded_actions(parser))
+
+    return add
+
+
+def check_bounds(args: argparse.Namespace) -> None:
+    """``CapeError`` for the first bounded option given outside its bounds (each value of a
+    repeated one)."""
+    for option, dest, bound in getattr(args, "_bounds", ()):
+        given = getattr(args, dest, None)
+        for value in given if isinstance(given, list) else [given]:
+            said = None if value is None else bound.limits().refusal(value)
+            if said is not None:
+                raise CapeError(f"{option} {_shown(value)}: {said}")
+
+
+def _shown(value: float | str) -> str:
+    """``value`` as a message shows it: at most about 40 characters of it."""
+    text = str(value)
+    return text if len(text) <= 40 else f"{text[:20]}…{text[-8:]} ({len(text)} characters)"
+
+
+def _checking_bounds(func: Command) -> Command:
+    """``func``, after ``check_bounds``: before it reads its config or claims its outputs."""
+
+    def checked(args: argparse.Namespace) -> None:
+        check_bounds(args)
+        func(args)
+
+    checked.__wrapped__ = func  # type: ignore[attr-defined]
+    return checked
 
 
 def _add_config_args(parser: argparse.ArgumentParser) -> None:

@@ -18,6 +18,7 @@ from cape.cli.common import (
     _entry,
     _files,
     _tracks_dir,
+    bounded,
     command,
 )
 from cape.errors import CapeError
@@ -144,7 +145,7 @@ def _raceline_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--time-limit",
-        type=float,
+        type=bounded("rollout.time_limit"),
         help="the runs' time limit (s, rollout.time_limit): refused if shorter than the line's "
         "ideal lap, before any run starts",
     )

@@ -6,11 +6,11 @@ Each command's arguments are defined right above it (``@command``)."""
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 from typing import Any
 
 from cape.cli.common import (
+    DRAW,
     FIGURE_SUFFIXES,
     JSON_SUFFIXES,
     PROVENANCE_COLUMNS,
@@ -24,6 +24,7 @@ from cape.cli.common import (
     _load_models,
     _read_dataset,
     _with_provenance,
+    bounded,
     command,
 )
 from cape.errors import CapeError
@@ -43,18 +44,22 @@ def _train_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--data", required=True, help="training data set (.npz)")
     p.add_argument("--out", required=True, help="output folder for model.pt, meta.json, loss.csv")
-    p.add_argument("--epochs", type=int, help="override the config's epoch count (smoke runs)")
-    p.add_argument("--seed", type=int, help="override training.seed")
+    p.add_argument(
+        "--epochs",
+        type=bounded("models.*.train.epochs"),
+        help="override the config's epoch count (smoke runs)",
+    )
+    p.add_argument("--seed", type=bounded("training.seed"), help="override training.seed")
     p.add_argument(
         "--replicate",
-        type=int,
+        type=DRAW,
         help="the draw this training is (SPEC §4; meta.json: a run refuses another's); the "
         "workflow's trainings have none: `cape draw` makes a draw of one",
     )
-    p.add_argument("--threads", type=int, help="override training.threads")
+    p.add_argument("--threads", type=bounded("training.threads"), help="override training.threads")
     p.add_argument(
         "--checkpoint-every",
-        type=float,
+        type=bounded("training.checkpoint_every"),
         metavar="SECONDS",
         help="write the resumable checkpoint at most this often (default: "
         "training.checkpoint_every, else 60; 0: after every epoch)",
@@ -73,17 +78,7 @@ def cmd_train(args: argparse.Namespace) -> None:
     from cape.models.checkpoint import save_model
     from cape.models.training_run import run_training
 
-    counts = {
-        "--epochs": (args.epochs, 1),
-        "--threads": (args.threads, 1),
-        "--seed": (args.seed, 0),
-        "--replicate": (args.replicate, 0),
-        "--checkpoint-every": (args.checkpoint_every, 0),
-    }
-    for option, (value, least) in counts.items():
-        if value is not None and not (math.isfinite(value) and value >= least):  # NaN too
-            raise CapeError(f"{option} {value}: give a number of at least {least}")
-    out = Path(args.out)
+    out = Path(args.out)  # --epochs, --threads, ... were checked (common.check_bounds)
     _claim(args, _model_output(out, args.model, args.replicate))  # before training
     run = run_training(
         spec,
@@ -177,7 +172,7 @@ def cmd_check_training(args: argparse.Namespace) -> None:
 
 def _draw_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", required=True, help="model name from the config's `models`")
-    p.add_argument("--replicate", required=True, type=int, help="the draw (0, 1, …)")
+    p.add_argument("--replicate", required=True, type=DRAW, help="the draw (0, 1, …)")
     p.add_argument(
         "--training",
         action="append",
@@ -186,7 +181,10 @@ def _draw_arguments(p: argparse.ArgumentParser) -> None:
         help="the model's trainings in seed order, each with its health.json (repeat)",
     )
     p.add_argument(
-        "--max-trainings", required=True, type=int, help="training.max_trainings (the cap)"
+        "--max-trainings",
+        required=True,
+        type=bounded("training.max_trainings"),
+        help="training.max_trainings (the cap)",
     )
     p.add_argument("--out", required=True, help="the draw's model folder")
 
@@ -200,9 +198,7 @@ def cmd_draw(args: argparse.Namespace) -> None:
     from cape.models.draws import make_draw
     from cape.storage.io import write_files
 
-    if args.replicate < 0 or args.max_trainings < 1:
-        raise CapeError("--replicate is at least 0 and --max-trainings at least 1")
-    out = Path(args.out)
+    out = Path(args.out)  # --replicate and --max-trainings were checked (common.check_bounds)
     _claim(args, _model_output(out, args.model, args.replicate))
     draw = make_draw(
         args.model, args.replicate, args.max_trainings, [Path(t) for t in args.training]

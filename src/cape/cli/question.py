@@ -25,7 +25,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from cape.cli.common import _claim, command
+from cape.cli.common import CORES, _claim, command
 from cape.errors import CapeError
 from cape.layout import paths
 
@@ -50,7 +50,7 @@ def _arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cores", default="2", help="Snakemake's --cores for each stage (%(default)s)")
     p.add_argument(
         "--project-cores",
-        type=int,
+        type=CORES,
         default=64,
         metavar="N",
         help="the cluster size the report projects the wall time to the cap on, beside two "

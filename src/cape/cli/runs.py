@@ -11,8 +11,10 @@ from pathlib import Path
 from typing import Any
 
 from cape.cli.common import (
+    DRAW,
     FIGURE_SUFFIXES,
     JSON_SUFFIXES,
+    SEED,
     STARTED,
     _add_config_args,
     _add_model_folders,
@@ -83,7 +85,7 @@ def _rollout_arguments(p: argparse.ArgumentParser) -> None:
         "--controller", required=True, help="controller name from the config (pid, rise, ...)"
     )
     p.add_argument("--eta", required=True, help="disturbance level η (0 … 5)")
-    p.add_argument("--seed", required=True, type=int, help="seed of every random draw of the run")
+    p.add_argument("--seed", required=True, type=SEED, help="seed of every random draw of the run")
     p.add_argument(
         "--out", required=True, help="output folder (metrics.json, timing.json, timeseries.parquet)"
     )
@@ -101,7 +103,7 @@ def _rollout_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--replicate",
         default=0,
-        type=int,
+        type=DRAW,
         help="the draw of the models given by --model (metrics.json's replicate; SPEC §4)",
     )
     _add_config_args(p)

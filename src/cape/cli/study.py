@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from cape.cli.common import (
+    DRAW,
     _add_config_args,
     _claim,
     _config,
@@ -23,7 +24,7 @@ def _aggregate_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--root", default=paths.RUNS, help="where the grid's runs are (%(default)s)")
     p.add_argument(
         "--replicates",
-        type=int,
+        type=DRAW,
         nargs="+",
         metavar="R",
         help="only the grid's runs of these draws (default: all)",
