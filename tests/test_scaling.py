@@ -256,9 +256,10 @@ def test_status_reads_the_queue_once_per_round_and_a_finished_job_once(tmp_path:
     assert done.returncode == 0 and done.stdout.strip() == "running", done
 
 
-def test_status_never_gives_up_on_a_job_while_slurm_does_not_answer(tmp_path: Path) -> None:
+def test_status_waits_for_a_job_while_slurm_does_not_answer(tmp_path: Path) -> None:
     """A busy controller (squeue and scontrol time out, no accounting): every job is still
-    running, asked about again next round, and squeue is not asked again within the round."""
+    running, asked about again next round (for at most CAPE_SLURM_GIVE_UP_AFTER, default
+    10 minutes: tests/test_slurm_scripts.py), and squeue is not asked again within the round."""
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
     calls = tmp_path / "calls"

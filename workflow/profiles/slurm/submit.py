@@ -14,21 +14,32 @@ The job script's Snakemake is given the job's CPUs (``--cores <threads>``, not `
 group runs as many rollouts at once as it asked CPUs for, whatever the node shows. A group job
 (many rollouts) is one submission named after its group; its SLURM log goes to
 ``results/logs/slurm/<group or rule>/<slurm job id>.log``.
+
+Every input (``sbatch`` on PATH, the properties, the resources) is checked before any file is
+changed; a bad one ends the script with one line on stderr and exit 2.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 import shlex
+import shutil
 import subprocess
 import sys
+import traceback
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 LOG_ROOT = Path("results") / "logs" / "slurm"  # cape.layout.paths.log("slurm"), checked by a test
 START_MINUTES = 1  # the job's own Snakemake: parsing the workflow before the first rule
 ALL_CORES = re.compile(r"--cores '?all'?(?=\s)")
+JOB_ID = re.compile(r"[0-9]+(_[0-9]+)?")
+ON_PATH = (
+    "run snakemake on the cluster's login node, where SLURM's commands are, or add them to PATH"
+)
 OPTIONAL = {
     "slurm_account": "--account",
     "slurm_partition": "--partition",
@@ -37,11 +48,23 @@ OPTIONAL = {
 }
 
 
-def properties(jobscript: Path) -> dict[str, Any]:
+def one_line(text: str) -> str:
+    """A command's (perhaps multi-line) message as one line."""
+    return " ".join(text.split())
+
+
+def properties(text: str, jobscript: Path) -> dict[str, Any]:
     """The job's properties, from the ``# properties = {...}`` line Snakemake writes."""
-    for line in jobscript.read_text().splitlines()[:5]:
+    for line in text.splitlines()[:5]:
         if line.startswith("# properties = "):
-            return json.loads(line.removeprefix("# properties = "))
+            props = json.loads(line.removeprefix("# properties = "))
+            if not isinstance(props, dict):
+                raise ValueError(f"{jobscript}: its properties are not a JSON object")
+            if not isinstance(props.get("resources", {}), dict):
+                raise ValueError(f"{jobscript}: its properties' resources are not a JSON object")
+            if not str(props.get("groupid" if props.get("type") == "group" else "rule") or ""):
+                raise ValueError(f"{jobscript}: its properties name no rule (or group)")
+            return props
     raise ValueError(f"{jobscript}: no '# properties = ' line (not a Snakemake job script?)")
 
 
@@ -79,7 +102,14 @@ def sbatch_command(props: dict[str, Any], jobscript: Path) -> list[str]:
             command.append(f"{option}={value}")
     extra = resources.get("slurm_extra")
     if extra:
-        command += shlex.split(str(extra))
+        try:
+            command += shlex.split(str(extra))
+        except ValueError as exc:  # "No closing quotation", "No escaped character"
+            raise ValueError(
+                f"resource slurm_extra={str(extra)!r} is not a list of sbatch options "
+                f"({str(exc).lower()}): balance its quotes (or escape them with \\) in the "
+                "profile's set-resources or in --set-resources"
+            ) from None
     return [*command, str(jobscript)]
 
 
@@ -87,12 +117,24 @@ def cpus(props: dict[str, Any]) -> int:
     return max(1, _whole(props.get("threads")) or 1)
 
 
-def pin_cores(jobscript: Path, count: int) -> None:
-    """Have the job script's Snakemake use ``count`` cores, not all the node shows."""
-    text = jobscript.read_text()
+def pin_cores(text: str, count: int, jobscript: Path) -> str:
+    """The job script with its Snakemake using ``count`` cores, not all the node shows."""
     if not ALL_CORES.search(text):
         raise ValueError(f"{jobscript}: no `--cores all` in its Snakemake command to pin")
-    jobscript.write_text(ALL_CORES.sub(f"--cores {count}", text, count=1))
+    return ALL_CORES.sub(f"--cores {count}", text, count=1)
+
+
+def _submit(command: list[str]) -> tuple[str, tuple[int, str] | None]:
+    """The job id sbatch printed, or the exit code and the line that say why there is none."""
+    done = subprocess.run(command, capture_output=True, text=True)
+    if done.returncode != 0:
+        said = one_line(done.stderr) or one_line(done.stdout)
+        return "", (max(done.returncode, 1), f"sbatch failed ({done.returncode}): {said}")
+    jobid = done.stdout.strip().split(";")[0]  # --parsable: "jobid" or "jobid;cluster"
+    if not JOB_ID.fullmatch(jobid):
+        said = one_line(done.stdout) or "nothing"
+        return "", (1, f"sbatch printed no job id (it printed {said!r})")
+    return jobid, None
 
 
 def main(argv: list[str]) -> int:
@@ -100,20 +142,41 @@ def main(argv: list[str]) -> int:
         print("usage: submit.py JOBSCRIPT", file=sys.stderr)
         return 2
     jobscript = Path(argv[1])
-    try:
-        props = properties(jobscript)
-        pin_cores(jobscript, cpus(props))
-    except (OSError, ValueError) as exc:
-        print(f"submit.py: {exc}", file=sys.stderr)
+    try:  # every check first: a refused job leaves no file changed
+        if shutil.which("sbatch") is None:
+            raise ValueError(f"no `sbatch` on PATH to submit {jobscript} with: {ON_PATH}")
+        text = jobscript.read_text()
+        props = properties(text, jobscript)
+        command = sbatch_command(props, jobscript)
+        pinned = pin_cores(text, cpus(props), jobscript)
+    except (OSError, ValueError) as exc:  # UnicodeDecodeError and JSONDecodeError too
+        print(f"submit.py: {one_line(str(exc))}", file=sys.stderr)
         return 2
-    (LOG_ROOT / job_name(props)).mkdir(parents=True, exist_ok=True)  # sbatch makes no folders
-    done = subprocess.run(sbatch_command(props, jobscript), capture_output=True, text=True)
-    if done.returncode != 0:
-        print(f"sbatch failed ({done.returncode}): {done.stderr.strip()}", file=sys.stderr)
-        return done.returncode
-    print(done.stdout.strip().split(";")[0])  # --parsable: "jobid" or "jobid;cluster"
+    try:
+        (LOG_ROOT / job_name(props)).mkdir(parents=True, exist_ok=True)  # sbatch makes none
+        jobscript.write_text(pinned)
+        jobid, error = _submit(command)
+    except OSError as exc:
+        jobid, error = "", (1, one_line(str(exc)))
+    if error:  # not submitted: the job script as it was (sbatch copied it if it queued one)
+        with contextlib.suppress(OSError):
+            jobscript.write_text(text)
+        print(f"submit.py: {error[1]}", file=sys.stderr)
+        return error[0]
+    print(jobid)
     return 0
 
 
+def guarded(script: str, main_: Callable[[list[str]], int], argv: list[str]) -> int:
+    """``main_(argv)``; a bug still ends in one line on stderr (where it is), not a traceback."""
+    try:
+        return main_(argv)
+    except Exception as exc:
+        where = traceback.extract_tb(exc.__traceback__)[-1]
+        place = f"{Path(where.filename).name} line {where.lineno}"
+        print(f"{script}: internal error {type(exc).__name__} ({place}): {exc}", file=sys.stderr)
+        return 1
+
+
 if __name__ == "__main__":
-    sys.exit(main(sys.argv))
+    sys.exit(guarded("submit.py", main, sys.argv))
