@@ -7,8 +7,10 @@ draws on N nodes of C cores, as the SLURM profile submits the jobs (docs/cluster
 Run it from a replicated study's folder (`snakemake --cores 2 all replicates`), with its config.
 What it reads, per measured draw (0, 1, …; draw 0 also computes, once, the runs no draw's
 network enters, such as the ground-truth car with its true model):
-  - each model's trainings for the draw, CPU seconds from their benchmark files; a model's
-    retries after a failed training run one after another (the health decides a retry);
+  - each model's trainings for the draw, failed ones included (``draw_cost.draw_trainings``:
+    the draws that reached training.max_trainings share the trainings after the last that
+    passed), CPU seconds from their benchmark files; and from them each model's measured
+    failure rate and mean training;
   - the draw's solver builds (benchmark files), each after its internal model's trainings;
   - every run of the draw (timing.json: the fixed part and the lap), grouped as the profile
     groups them, one draw at one η and one seed per submission on one core, plus
@@ -18,7 +20,13 @@ network enters, such as the ground-truth car with its true model):
   - the tail after the last run: the replicates scope's aggregation and the longest
     closed-loop notebook (benchmark files).
 Draw 0 of the projection is measured draw 0; draw d > 0 repeats measured draw 1 + (d − 1) mod
-(M − 1). The jobs are list-scheduled on N × C
+(M − 1), its solvers and runs. Its trainings are projected, not repeated: each draw of R takes,
+per model, the bounded expectation E[min(τ, cap)] / R of trainings (``expected_trainings``; τ
+the trainings until R pass at the model's measured failure rate, cap training.max_trainings,
+2 × R when null), each of the model's mean measured training, one after another (a retry waits
+for the training before it; a fraction of a training is that fraction of its seconds). Not
+1 / (1 − rate): it is unbounded as the rate nears 1, while the workflow stops at the cap and
+gives the further draws failed stand-ins. The jobs are list-scheduled on N × C
 single-core slots, trainings first, each start ``--queue-wait`` seconds after its job is ready
 (the site's queue; 0 on an idle cluster). Not modelled: the node a job lands on, memory, and
 the main Snakemake process's own pace on the login node.
@@ -32,7 +40,7 @@ import math
 import sys
 from collections import defaultdict
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from _common import add_config, listed, run, study_config  # a sibling module
@@ -40,25 +48,37 @@ from draw_cost import benchmark_cpu, draw_runs, draw_trainings, fixed_part, solv
 
 from cape.errors import CapeError
 from cape.layout import paths
+from cape.models.draws import default_max_trainings
 
 
 @dataclass
 class Draw:
-    """One measured draw: each model's trainings (s, seed order), its solver builds (internal
-    model → s), its rollout groups ((η, seed) → seconds of runs and how many)."""
+    """One draw: each model's trainings (s, seed order; a shared one, the draw's share), its
+    solver builds (internal model → s), its rollout groups ((η, seed) → seconds of runs and
+    how many); measured, each model's trainings it took (seed → CPU s, passed; a shared one
+    whole) and how many (a shared one counts 1/n)."""
 
     trainings: dict[str, list[float]] = field(default_factory=dict)
     solvers: list[tuple[str, float]] = field(default_factory=list)
     groups: dict[tuple[float, str], list[float]] = field(default_factory=dict)
+    took: dict[str, dict[int, tuple[float, bool | None]]] = field(default_factory=dict)
+    counts: dict[str, float] = field(default_factory=dict)
 
 
 def measure_draw(config: dict, replicate: int, lacking: list[str]) -> Draw:
     """Draw ``replicate``'s measured jobs (a missing file goes to ``lacking``)."""
     draw = Draw()
+    replicates = int(config["training"]["replicates"])
     for model in config["models"]:
-        seeds = draw_trainings(model, replicate, lacking) or []
-        files = [Path(paths.benchmark("train", model, f"seed{s}.tsv")) for s in seeds]
-        draw.trainings[model] = list(benchmark_cpu(files, lacking).values())
+        took = draw_trainings(model, replicate, replicates, lacking) or []
+        files = [Path(paths.benchmark("train", model, f"seed{t.seed}.tsv")) for t in took]
+        measured = benchmark_cpu(files, lacking)
+        draw.trainings[model], draw.took[model] = [], {}
+        for t, path in zip(took, files, strict=True):
+            if str(path) in measured:
+                draw.trainings[model].append(measured[str(path)] / t.sharing)
+                draw.took[model][t.seed] = (measured[str(path)], t.trained)
+        draw.counts[model] = sum(1 / t.sharing for t in took)
     for path, seconds in benchmark_cpu(solver_files(replicate, None), lacking).items():
         draw.solvers.append((Path(path).stem.removesuffix("-fixed"), seconds))
     groups: dict[tuple[float, str], list[float]] = defaultdict(list)
@@ -66,6 +86,75 @@ def measure_draw(config: dict, replicate: int, lacking: list[str]) -> Draw:
         groups[(r["eta"], r["seed"])].append(fixed_part(r) + r["lap"])
     draw.groups = dict(groups)
     return draw
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """A model's measured trainings over every draw: how many, how many failed, their mean
+    CPU seconds."""
+
+    tried: int
+    failed: int
+    seconds: float
+
+    @property
+    def rate(self) -> float:
+        return self.failed / self.tried
+
+
+def recipes(draws: list[Draw]) -> dict[str, Recipe]:
+    """Each model's trainings, failed ones included, from every measured draw (each once)."""
+    out = {}
+    for model in draws[0].took:
+        trainings = {seed: t for d in draws for seed, t in d.took.get(model, {}).items()}
+        unknown = sorted(seed for seed, (_, trained) in trainings.items() if trained is None)
+        if unknown or not trainings:
+            raise CapeError(
+                f"{paths.MODELS}: the draws of {model} record "
+                + (f"no `trained` for seed {unknown[0]}" if unknown else "no training")
+                + " (meta.json's draw.trainings); rebuild them (`snakemake --cores 2 "
+                "all replicates`)"
+            )
+        seconds = [s for s, _ in trainings.values()]
+        failed = sum(not trained for _, trained in trainings.values())
+        out[model] = Recipe(len(trainings), failed, sum(seconds) / len(seconds))
+    return out
+
+
+def draw_cap(config: dict, count: int) -> int:
+    """training.max_trainings for ``count`` draws: the config's, at least ``count`` (the least
+    the config accepts), or 2 × ``count`` when it is null (the workflow's default)."""
+    cap = config["training"].get("max_trainings")
+    return default_max_trainings(count) if cap is None else max(int(cap), count)
+
+
+def expected_trainings(rate: float, count: int, cap: int) -> float:
+    """The trainings a draw takes on average when a model whose trainings fail at ``rate``
+    makes ``count`` draws under the cap ``cap``: E[min(τ, cap)] / count, τ the trainings until
+    ``count`` of them pass (negative binomial), and E[min(τ, cap)] = Σ_{k < cap} P(τ > k), the
+    chance that fewer than ``count`` of k trainings pass. It is 1 at rate 0, cap / count at
+    rate 1 (every training fails: the workflow stops at the cap), below 1 / (1 − rate)."""
+    import numpy as np
+    from scipy.stats import binom
+
+    passes = binom.cdf(count - 1, np.arange(cap), 1.0 - rate)
+    return float(passes.sum()) / count
+
+
+def training_chain(expected: float, seconds: float) -> list[float]:
+    """``expected`` trainings of ``seconds`` each, one after another: the whole ones, then
+    the fraction as a training of that fraction of the seconds."""
+    whole = math.floor(expected + 1e-9)
+    rest = expected - whole
+    return [seconds] * whole + ([rest * seconds] if rest > 1e-9 else [])
+
+
+def projected(draws: list[Draw], models: dict[str, Recipe], count: int, cap: int) -> list[Draw]:
+    """The measured draws with each model's trainings replaced by the expectation for
+    ``count`` draws under ``cap`` (``expected_trainings``)."""
+    chains = {m: training_chain(expected_trainings(r.rate, count, cap), r.seconds)
+              for m, r in models.items()}  # fmt: skip
+    return [replace(d, trainings=dict(chains)) for d in draws]
 
 
 def tail_seconds(lacking: list[str]) -> float:
@@ -199,18 +288,33 @@ def main() -> int:
 
     for r, draw in enumerate(draws):
         runs = [t for g in draw.groups.values() for t in g]
-        trained = ", ".join(f"{m} {sum(s):.0f} s ({len(s)})" for m, s in draw.trainings.items())
+        trained = ", ".join(f"{m} {sum(s):.0f} s ({draw.counts[m]:.4g})"
+                            for m, s in draw.trainings.items())  # fmt: skip
         print(f"draw {r}: trainings {trained}; {len(draw.solvers)} solver builds "
               f"{sum(s for _, s in draw.solvers):.0f} s; {len(runs)} runs {sum(runs):.0f} s in "
               f"{len(draw.groups)} groups (largest {max(map(len, draw.groups.values()))} runs, "
               f"{max(map(sum, draw.groups.values())):.0f} s)")  # fmt: skip
     print(f"tail: {tail:.0f} s (aggregation and the longest closed-loop notebook)")
+    models = recipes(draws)
+    counts = sorted({replicates, *args.draws})
+    print("trainings per draw, failed ones included: the bounded expectation E[min(τ, cap)] / R "
+          "(τ: the trainings until R pass at the measured failure rate; cap: "
+          "training.max_trainings, 2 × R when null), not 1 / (1 − rate), each of the mean "
+          "measured training")  # fmt: skip
+    for model, recipe in models.items():
+        expected = ", ".join(
+            f"R = {c}: {expected_trainings(recipe.rate, c, draw_cap(config, c)):.4g} "
+            f"(cap {draw_cap(config, c)})" for c in counts
+        )  # fmt: skip
+        print(f"  {model}: {recipe.tried} trainings, {recipe.failed} failed "
+              f"({recipe.rate:.0%}), mean {recipe.seconds:.0f} s; per draw {expected}")  # fmt: skip
     overheads = (args.run_overhead, args.group_overhead)
-    first = sum(j.seconds for j in study_jobs(draws, 1, *overheads))
-    more = (sum(j.seconds for j in study_jobs(draws, len(draws), *overheads)) - first) / (
+    study = projected(draws, models, replicates, draw_cap(config, replicates))
+    first = sum(j.seconds for j in study_jobs(study, 1, *overheads))
+    more = (sum(j.seconds for j in study_jobs(study, len(draws), *overheads)) - first) / (
         len(draws) - 1
     )
-    path = makespan(study_jobs(draws, len(draws), *overheads), 10**6, args.queue_wait)
+    path = makespan(study_jobs(study, len(draws), *overheads), 10**6, args.queue_wait)
     print(f"work: draw 0 {first / 3600:.2f} CPU hours (with the runs computed once), a further "
           f"draw {more / 3600:.2f}; critical path {hours(path)} (h:mm, unlimited cores) "
           "+ the tail")  # fmt: skip
@@ -219,7 +323,8 @@ def main() -> int:
     print("| R draws | " + " | ".join(f"N = {n}" for n in args.nodes) + " |")
     print("|---:|" + "---:|" * len(args.nodes))
     for count in args.draws:
-        jobs = study_jobs(draws, count, args.run_overhead, args.group_overhead)
+        plan = projected(draws, models, count, draw_cap(config, count))
+        jobs = study_jobs(plan, count, args.run_overhead, args.group_overhead)
         cells = [hours(makespan(jobs, n * args.cores, args.queue_wait) + tail) for n in args.nodes]
         print(f"| {count} | " + " | ".join(cells) + " |")
     return 0

@@ -16,10 +16,14 @@ printed beside the total, as this machine's speed drifts between studies.
 
 Run it from the study's folder, with the config the study was built with (``--configfile``):
 every file is looked for where the workflow writes it (``cape.layout.paths``), and the runs of
-the draw are the config's grid (``cape.study.grid``). A draw's trainings are those its
-``meta.json`` says were consulted for it and not for the draw before it. A study that lacks a
-part (a training's or a solver's benchmark file, a draw, a run not computed yet) is told what
-it lacks and given no total: a missing part is never counted as zero. A damaged file (an empty
+the draw are the config's grid (``cape.study.grid``). A draw's trainings are every training
+it took, failed ones included (``draw_trainings``): those its ``meta.json`` says were consulted
+for it and not for the draw before it; and when the model reached ``training.max_trainings``
+(too few trainings passed), the trainings after its last passed one, shared equally by the
+draws that reached the cap (each counts 1/n of them). Over the study's draws every training is
+counted once. A study that lacks a part (a training's or a solver's benchmark file, a draw, a
+run not computed yet) is told what it lacks and given no total: a missing part is never
+counted as zero. A damaged file (an empty
 benchmark TSV, a truncated timing.json, a run folder without its metrics.json) ends the script
 with one line naming the file and the fix, exit status 2.
 """
@@ -29,6 +33,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections import defaultdict
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -53,30 +58,80 @@ def cpu_of(path: Path) -> float:
     return value if value == value else float(row["s"])  # NaN: Snakemake could not measure
 
 
-def draw_trainings(model: str, replicate: int, lacking: list[str]) -> list[int] | None:
-    """The training seeds of ``model`` that draw ``replicate`` needed and the draw before it
-    did not (its ``meta.json``'s ``draw.trainings``), or None (said in ``lacking``)."""
+@dataclass(frozen=True)
+class Took:
+    """A training a draw took: its seed, whether it passed its checks (None: the draw's
+    meta.json does not say) and how many draws share it (1: this draw's alone)."""
 
-    def consulted(r: int) -> set[int] | None:
-        path = Path(paths.model_dir(model, r), paths.META)
-        if not path.is_file():
-            lacking.append(f"{path} (draw {r} of {model}: `snakemake --cores 2 {path}`)")
-            return None
-        meta = read_json(path, "a model's meta.json", f"delete it and rebuild it with "
-                         f"`snakemake --cores 2 {path}`")  # fmt: skip
-        try:
-            return {int(t["seed"]) for t in meta["draw"]["trainings"]}
-        except (KeyError, TypeError, ValueError):
-            raise CapeError(
-                f"{path}: no `draw.trainings` (the trainings consulted for the "
-                f"draw); rebuild it with `snakemake --cores 2 {path}`"
-            ) from None
+    seed: int
+    trained: bool | None
+    sharing: int = 1
 
-    mine = consulted(replicate)
-    before = consulted(replicate - 1) if replicate > 0 else set()
-    if mine is None or before is None:
+
+def read_draw(model: str, replicate: int, lacking: list[str]) -> tuple[Path, dict, bool] | None:
+    """Draw ``replicate`` of ``model``'s meta.json: its path, the trainings it consulted
+    (seed → passed, None when not recorded) and whether it reached training.max_trainings;
+    None when the draw is not built (said in ``lacking``)."""
+    path = Path(paths.model_dir(model, replicate), paths.META)
+    if not path.is_file():
+        lacking.append(f"{path} (draw {replicate} of {model}: `snakemake --cores 2 {path}`)")
         return None
-    return sorted(mine - before)
+    fix = f"delete it and rebuild it with `snakemake --cores 2 {path}`"
+    meta = read_json(path, "a model's meta.json", fix)
+    try:
+        record = meta["draw"]
+        outcomes: dict[int, bool | None] = {}
+        for t in record["trainings"]:
+            trained = t.get("trained")
+            if trained is not None and not isinstance(trained, bool):
+                raise ValueError
+            outcomes[int(t["seed"])] = trained
+        cap_reached = record.get("cap_reached", False)
+        if not isinstance(cap_reached, bool):
+            raise ValueError
+    except (KeyError, TypeError, ValueError, AttributeError):
+        raise CapeError(
+            f"{path}: no `draw.trainings` (the trainings consulted for the "
+            f"draw) with their seeds and outcomes; {fix}"
+        ) from None
+    return path, dict(sorted(outcomes.items())), cap_reached
+
+
+def draw_trainings(
+    model: str, replicate: int, replicates: int, lacking: list[str]
+) -> list[Took] | None:
+    """The trainings of ``model`` that draw ``replicate`` took, failed ones included (its
+    ``meta.json``'s ``draw.trainings``), or None (said in ``lacking``):
+
+    - a draw that found its training (the (r + 1)-th that passed) took the trainings it
+      consulted and the draw before it did not: the failed ones since that draw's, and its own;
+    - the draws that reached ``training.max_trainings`` (P of the model's trainings passed,
+      fewer than the ``replicates`` draws) share the trainings after the last that passed:
+      each of those R − P draws takes 1/(R − P) of every one of them.
+
+    So each training the model ran is counted once over the study's draws, and a draw whose
+    trainings all failed costs its share of them, never 0 s."""
+    mine = read_draw(model, replicate, lacking)
+    if mine is None:
+        return None
+    path, outcomes, cap_reached = mine
+    if cap_reached:
+        if None in outcomes.values():
+            raise CapeError(f"{path}: `draw.trainings` records no `trained` for a training; "
+                            f"rebuild it with `snakemake --cores 2 {path}`")  # fmt: skip
+        passed = [seed for seed, trained in outcomes.items() if trained]
+        if not len(passed) <= replicate < replicates:
+            raise CapeError(
+                f"{path}: draw {replicate} reached training.max_trainings with "
+                f"{len(passed)} trainings passed, which a study of training.replicates "
+                f"{replicates} does not make; give the config the study was built with"
+            )
+        after = [seed for seed in outcomes if not passed or seed > passed[-1]]
+        return [Took(seed, outcomes[seed], replicates - len(passed)) for seed in after]
+    before = read_draw(model, replicate - 1, lacking) if replicate > 0 else (path, {}, False)
+    if before is None:
+        return None
+    return [Took(seed, trained) for seed, trained in outcomes.items() if seed not in before[1]]
 
 
 def benchmark_cpu(files: list[Path], lacking: list[str]) -> dict[str, float]:
@@ -242,12 +297,13 @@ def main() -> int:
                         f"({', '.join(trainable)})")  # fmt: skip
     models = set(args.models) if args.models else None
     lacking: list[str] = []
-    training_files = []
+    replicates = int(config["training"]["replicates"])
+    took: dict[str, Took] = {}  # a training's benchmark file → how the draw took it
     for model in args.models or trainable:
-        seeds = draw_trainings(model, args.replicate, lacking)
-        for seed in seeds or []:
-            training_files.append(Path(paths.benchmark("train", model, f"seed{seed}.tsv")))
-    training = benchmark_cpu(training_files, lacking)
+        for t in draw_trainings(model, args.replicate, replicates, lacking) or []:
+            took[paths.benchmark("train", model, f"seed{t.seed}.tsv")] = t
+    measured = benchmark_cpu([Path(f) for f in took], lacking)
+    training = {f: cpu / took[f].sharing for f, cpu in measured.items()}  # the draw's share
     solvers = benchmark_cpu(solver_files(args.replicate, models), lacking)
     runs = draw_runs(config, args.replicate, models, lacking)
     parts: dict[str, float] = defaultdict(float)
@@ -262,10 +318,19 @@ def main() -> int:
         by_cell[(r["study"], r["law"])]["jobs"] += 1
         by_cell[(r["study"], r["law"])]["rescues"] += r["rescues"]
     print(f"replicate {args.replicate}: {len(runs)} runs with its networks")
-    counted = f"{len(training)} training" + ("" if len(training) == 1 else "s")
+    count = sum(1 / t.sharing for t in took.values())
+    failed = sum(1 / t.sharing for t in took.values() if t.trained is False)
+    counted = f"{count:.4g} training{'' if count == 1 else 's'}" + (
+        f", {failed:.4g} failed" if all(t.trained is not None for t in took.values()) else ""
+    )
     print(f"  training  {sum(training.values()):8.0f} s  ({counted}) "
           + ", ".join(f"{Path(k).parent.name}/{Path(k).stem} {v:.0f}"
+                      + (f" (1/{took[k].sharing} of {measured[k]:.0f})"
+                         if took[k].sharing > 1 else "")
                       for k, v in training.items()))  # fmt: skip
+    if any(t.sharing > 1 for t in took.values()):
+        print("            (1/n of a training: one after its model's last passed training, "
+              "shared by the n draws that reached training.max_trainings)")  # fmt: skip
     print(f"  solvers   {sum(solvers.values()):8.0f} s  ({len(solvers)} builds)")
     for name, value in parts.items():
         print(f"  {name:15} {value:8.0f} s")
