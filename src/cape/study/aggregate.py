@@ -134,12 +134,35 @@ def collect_runs(
     rows = [read_run(Path(run[1]), run[0], *run[2:4], current=current) for run in runs]
     if not rows:
         raise CapeError("no runs to aggregate")
+    _refuse_twice(rows)
     frame = pd.DataFrame(rows)
     by_internal = frame["study"].isin(list(varies_internal))
     frame["model"] = frame["internal"].where(by_internal, frame["plant"])
     first = [*KEYS, "model", "eta_label", "success", "failure", "steps"]
     frame = frame[first + [c for c in frame.columns if c not in first]]
     return frame.sort_values(KEYS, kind="stable").reset_index(drop=True)
+
+
+def _refuse_twice(rows: Sequence[Mapping[str, Any]]) -> None:
+    """Each run counts once: a metrics.json given twice (the same file, or a copy of the same
+    run elsewhere) would weigh its run double in every mean and interval. A user who lists a
+    run twice has made a mistake, so it is refused rather than silently counted once. (A run
+    the grid reads for two studies or replicates is two rows of different keys.)"""
+    seen: dict[tuple[Any, ...], str] = {}
+    for row in rows:
+        key = tuple(row[k] for k in KEYS)
+        path = str(Path(row["folder"]) / paths.METRICS)
+        if key not in seen:
+            seen[key] = path
+            continue
+        first = seen[key]
+        run = ", ".join(f"{k} {row[k]}" for k in KEYS)
+        said = (
+            f"{path}: given twice"
+            if Path(first).resolve() == Path(path).resolve()
+            else f"{path}: the same run as {first}"
+        )
+        raise CapeError(f"{said} ({run}); each run counts once: list it once")
 
 
 def mean_ci(values: Sequence[float], level: float = 0.95) -> tuple[float, float, float]:

@@ -21,6 +21,7 @@ from cape.study.claims import FAILURES, NMPCS, Selection, at_eta, both, controll
 from cape.study.verdicts import (
     EQUIVALENT,
     INCONCLUSIVE,
+    NONE,
     POINT,
     class_interval,
     draws_needed,
@@ -116,6 +117,43 @@ def _span_text(values: Mapping[int, Sequence[float]], study_draws: int) -> tuple
     return span.estimate, f"{span.estimate:.3g} [{span.low:.3g}, {span.high:.3g}]"
 
 
+def _unusable(
+    runs: pd.DataFrame,
+    metric: Metric,
+    model: str,
+    values: Mapping[tuple[str, int], pd.Series],
+    study_draws: int,
+) -> str:
+    """Why ``model``'s values of ``metric`` (``values``: ``per_seed``) cannot rank it, or ""."""
+    # A penalised lap time is at most the time limit or the penalty (SPEC §5.3): a value that is
+    # infinite, or so large that the row's arithmetic (the mean over seeds and draws, the spread,
+    # the interval) overflows to inf or NaN, is no lap time but a broken run. It is said for
+    # what it is and the row left unranked: not "no value" (there is one), and not a failed lap
+    # (counting the penalty would invent a failure the run did not record).
+    if metric.column == FAILURES:
+        return ""  # counts of failed runs: always finite
+    mine = {r: list(v) for (m, r), v in values.items() if m == model}
+    span = class_interval(mine, study_draws)
+    results = [] if span.unit == NONE else [span.estimate, span.low, span.high]
+    seeds = [v for vs in mine.values() for v in vs]
+    if not (np.isinf(seeds).any() or not np.isfinite(results).all()):
+        return ""
+    chosen = metric.select(runs)
+    chosen = chosen[chosen["model"] == model]
+    column = chosen[metric.column].astype(float)
+    worst = column.abs().idxmax()
+    value = float(column[worst])
+    what = (
+        "not a finite number"
+        if math.isinf(value)
+        else "its mean and spread over the seeds and draws overflow"
+    )
+    return (
+        f"{metric.label}: {value:g} in draw {chosen.at[worst, 'replicate']}, seed "
+        f"{chosen.at[worst, 'seed']} is not a usable value ({what}); a broken run: rerun it"
+    )
+
+
 def trained_runs(runs: pd.DataFrame, failed: Mapping[int, Mapping[str, str]]) -> pd.DataFrame:
     """The runs of the draws whose training worked (``failed``: replicate → model → reason, the
     draws that stood in for a model that reached its cap)."""
@@ -154,7 +192,9 @@ def leaderboard(
     runs = trained_runs(runs, failed or {})
     untrained = {m for m in present if m not in set(runs["model"])}
     values = {metric.key: per_seed(runs, metric) for metric in METRICS}
-    has_reference = any(m == reference for m, _ in values[primary])
+    unusable = {m: _unusable(runs, metric_of(primary), m, values[primary], study_draws)
+                for m in present}  # fmt: skip
+    has_reference = any(m == reference for m, _ in values[primary]) and not unusable.get(reference)
     rows = []
     for model in present:
         row: dict[str, object] = {"model": model}
@@ -165,7 +205,8 @@ def leaderboard(
             estimate, text = _span_text(mine, study_draws)
             row[metric.label] = text
             if metric.key == primary:
-                row["_rank"] = estimate
+                row["_rank"] = math.nan if unusable[model] else estimate
+                row[metric.label] = "not usable" if unusable[model] else text
         for name, tables in (("openloop", openloop), ("complexity", complexity)):
             columns = OPENLOOP if name == "openloop" else COMPLEXITY
             for column in columns:
@@ -188,6 +229,8 @@ def leaderboard(
                 "none of its draws in this study trained (its trainings reached "
                 "training.max_trainings)"
                 if model in untrained
+                else unusable[model]
+                if unusable[model]
                 else f"no value of the primary metric ({label}) in this study's runs of the "
                 "draws that trained"
             )
@@ -195,8 +238,10 @@ def leaderboard(
         elif not has_reference:
             worked = " whose training worked" if reference in untrained else ""
             cause = (
-                f"{reference.upper()} (study.reference_model) has no run of the primary metric "
-                f"in this study{worked}"
+                f"{reference.upper()} (study.reference_model): {unusable[reference]}"
+                if unusable.get(reference)
+                else f"{reference.upper()} (study.reference_model) has no run of the primary "
+                f"metric in this study{worked}"
             )
             row.update(_no_effect(NO_REFERENCE, cause))
         else:
@@ -251,6 +296,9 @@ def _against(
     span = class_interval(effects, study_draws)
     if math.isnan(span.estimate):
         why = f"no draw and seed in common with {reference.upper()}"
+        return {**nothing, "verdict vs reference": INCONCLUSIVE, "draws needed": "", "why": why}
+    if not np.isfinite([span.estimate, span.low, span.high]).all():  # an inf never decides
+        why = f"the effect against {reference.upper()} overflows (its values are too large)"
         return {**nothing, "verdict vs reference": INCONCLUSIVE, "draws needed": "", "why": why}
     if span.unit == POINT:
         said, needed, why = INCONCLUSIVE, draws_needed(span, 0.95, power, most_draws), span.why
