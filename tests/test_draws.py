@@ -145,7 +145,7 @@ def test_a_health_record_that_is_not_one_is_refused_naming_the_file(tmp_path: Pa
     path.write_text(json.dumps({"format": 1, "seed": 3}))
     with pytest.raises(CapeError, match="not a training's health record"):
         read_outcome(path)
-    record = Outcome(3, False, ("stalled",), {"vx": 1e-3, "vy": 2e-3, "omega": 3e-3}, "ab")
+    record = Outcome(3, False, ("stalled",), {"vx": 1e-3, "vy": 2e-3, "omega": 3e-3}, "ab" * 32)
     path.write_text(json.dumps(record.to_dict()))
     assert read_outcome(path) == record
 

@@ -280,12 +280,17 @@ def test_a_network_left_from_earlier_weights_is_refused(
     frozen = str(folder / "frozen_phi.json")
     freeze = ["freeze", "--model", f"dpm={folder}", "--data", str(data), "--out", frozen]
     assert main([*freeze, "--config", str(setup["config"])]) == 0
-    retrained = cape(*train, "--seed", "1")  # by hand, into the same folder
+    # another training (here: another seed) over a finished one: refused, it is not the same
+    one_message(cape(*train, "--seed", "1"), f"--out {folder}: holds trained model dpm seed 0",
+                "nothing was changed")  # fmt: skip
+    for name in ("model.pt", "meta.json", "loss.csv"):  # as Snakemake deletes them to retrain
+        (folder / name).unlink()
+    retrained = cape(*train, "--seed", "1")
     assert retrained.returncode == 0, retrained.stderr
     # another model into this model's folder: refused before anything is written
     kept = {n: (folder / n).read_bytes() for n in ("model.pt", "meta.json", "loss.csv")}
     other = cape(*[("ddm" if a == "dpm" else a) for a in train])
-    one_message(other, f"--out {folder}: holds trained model dpm, not trained model ddm",
+    one_message(other, f"--out {folder}: holds trained model dpm seed 1", "not trained model ddm",
                 "nothing was changed")  # fmt: skip
     assert {n: (folder / n).read_bytes() for n in kept} == kept
 
@@ -333,7 +338,9 @@ def test_a_run_is_tied_to_its_replicates_networks(
                  "--summary", str(tmp_path / "summary.parquet"), "--models-root", str(models),
                  *config]  # fmt: skip
     assert cape(*aggregate).returncode == 0
-    assert cape(*train, "--seed", "1", *config).returncode == 0  # retrained by hand
+    for name in ("model.pt", "meta.json", "loss.csv"):  # as Snakemake deletes them to retrain
+        (folder / name).unlink()
+    assert cape(*train, "--seed", "1", *config).returncode == 0  # retrained
     stale = cape(*aggregate)
     one_message(stale, str(out), "plant model dpm", recorded["weights_sha256"][:12],
                 json.loads((folder / "meta.json").read_text())["weights_sha256"][:12],
@@ -372,8 +379,12 @@ def test_a_model_table_is_tied_to_its_replicates_networks(
         assert made.returncode == 0, made.stderr
         assert "weights_sha256" not in md.read_text()
         assert read_replicate_tables([0], str(csv), models)[0]["replicate"].tolist() == [0]
-        misfiled = cape(*command, "--model", f"dpm={models / 'rep1' / 'dpm'}", "--out", str(csv),
-                        *config)  # fmt: skip
+        misfile = [*command, "--model", f"dpm={models / 'rep1' / 'dpm'}", "--out", str(csv),
+                   *config]  # fmt: skip
+        # over the table of draw 0: refused, a table of draw 1 is another table
+        one_message(cape(*misfile), "holds", "of dpm draw 0", "not", "of dpm draw 1")
+        csv.unlink()  # by hand: a table file misfiled is still caught by its reader
+        misfiled = cape(*misfile)
         assert misfiled.returncode == 0, misfiled.stderr
         with pytest.raises(CapeError, match="computed from draw 1's network") as refused:
             read_replicate_tables([0], str(csv), models)
@@ -381,8 +392,11 @@ def test_a_model_table_is_tied_to_its_replicates_networks(
     retrain = ["train", "--model", "dpm", "--data", str(train_data), "--out",
                str(models / "rep0" / "dpm"), "--replicate", "0", "--epochs", "1", "--seed", "7",
                *config]  # fmt: skip
+    (tables / "table04_openloop_rmse.csv").unlink()
     assert cape(*openloop, "--model", f"dpm={models / 'rep0' / 'dpm'}", "--out",
                 str(tables / "table04_openloop_rmse.csv"), *config).returncode == 0  # fmt: skip
+    for name in ("model.pt", "meta.json", "loss.csv"):  # as Snakemake deletes them to retrain
+        (models / "rep0" / "dpm" / name).unlink()
     assert cape(*retrain).returncode == 0
     with pytest.raises(CapeError, match=r"draw 0's is .*rep0/dpm .*stale"):
         read_replicate_tables([0], str(tables / "table04_openloop_rmse.csv"), models)
@@ -449,7 +463,20 @@ def test_a_killed_training_resumes_to_the_same_bytes(
     assert f"resumed from {checkpoint} after epoch {kept}" in again.stdout
     for name in ("model.pt", "loss.csv"):
         assert (killed / name).read_bytes() == (tmp_path / "whole" / name).read_bytes(), name
-    assert not list(killed.glob("checkpoint-*.pt"))  # done: the checkpoint is gone
+    assert _epoch_of(checkpoint) == 10  # kept, at the last epoch
+
+    # the outputs deleted, as Snakemake deletes a job's outputs it had not recorded as done:
+    # the rerun rewrites them from the kept checkpoint, without training again
+    whole = {n: (killed / n).read_bytes() for n in ("model.pt", "loss.csv")}
+    for name in ("model.pt", "meta.json", "loss.csv"):
+        (killed / name).unlink()
+    started = time.perf_counter()
+    third = subprocess.run(train(killed), capture_output=True, text=True, timeout=600)
+    assert third.returncode == 0, third.stderr
+    assert f"already trained: its outputs rewritten from {checkpoint} (epoch 10)" in third.stdout
+    assert json.loads((killed / "meta.json").read_text())["resumed_from_epoch"] == 10  # none ran
+    assert {n: (killed / n).read_bytes() for n in whole} == whole
+    assert time.perf_counter() - started < 60
 
     # another config (here: another seed) never resumes that checkpoint, nor removes it
     from cape.cli.models import _model_output

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 import time
 from pathlib import Path
 
@@ -363,7 +364,9 @@ def test_cli_train_writes_a_complete_model_folder(config, datasets, tmp_path: Pa
     argv = ["train", "--model", "epm", "--data", str(data), "--out", str(out), "--epochs", "1",
             "--config", str(tmp_path / "config.yaml")]  # fmt: skip
     assert main(argv) == 0
-    assert sorted(p.name for p in out.iterdir()) == ["loss.csv", "meta.json", "model.pt"]
+    names = sorted(p.name for p in out.iterdir())
+    assert names[1:] == ["loss.csv", "meta.json", "model.pt"]  # and the kept checkpoint:
+    assert re.fullmatch(r"checkpoint-[0-9a-f]{16}\.pt", names[0]), names
     meta = json.loads((out / "meta.json").read_text())
     assert meta["epochs"] == 1 and meta["seed"] == 0 and len(meta["data_sha256"]) == 64
     assert meta["compiled"] is False

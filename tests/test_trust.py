@@ -276,6 +276,44 @@ def _planned_rollouts(dry_run_output: str) -> dict[str, str]:
 
 
 @pytest.mark.slow
+def test_a_training_snakemake_did_not_record_is_rewritten_not_retrained(tmp_path: Path) -> None:
+    """`snakemake` killed with SIGKILL (itself, not its job) as a training writes its model:
+    the rerun deletes the outputs of the job it never recorded and runs it again, which
+    rewrites them from the training's kept checkpoint in seconds, byte-identical."""
+    work = tmp_path / "work"
+    (work / "config").mkdir(parents=True)
+    cfg = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
+    cfg["tracks"]["mirror"] = str((REPO_ROOT / cfg["tracks"]["mirror"]).resolve())
+    cfg["models"]["dpm"]["train"]["epochs"] = 3
+    cfg["training"]["compile"] = {"enabled": False}
+    (work / "config" / "config.yaml").write_text(yaml.safe_dump(cfg))
+    folder = work / "results" / "trainings" / "dpm" / "seed0"
+    target = str((folder / "model.pt").relative_to(work))
+    command = ["snakemake", "-s", str(REPO_ROOT / "Snakefile"), "--cores", "1", "-d", str(work),
+               target]  # fmt: skip
+    first = subprocess.Popen(command, cwd=REPO_ROOT, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL)  # fmt: skip
+    deadline = time.time() + 600
+    while time.time() < deadline and first.poll() is None and not (folder / "model.pt").exists():
+        time.sleep(0.01)
+    first.send_signal(signal.SIGKILL)  # snakemake alone: its job runs on to its end
+    first.wait()
+    assert (folder / "model.pt").exists(), "snakemake ended before the training wrote its model"
+    written = (folder / "model.pt").read_bytes()
+    time.sleep(5)  # the orphaned `cape train` exits
+    plan = _snakemake("-n", "--cores", "1", "-d", str(work), target).stdout
+    assert "rule train:" in plan, plan  # Snakemake never recorded it: the job is run again
+    again = subprocess.run(command, cwd=REPO_ROOT, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stdout + again.stderr
+    log = (work / "results" / "logs" / "train" / "dpm" / "seed0.log").read_text()
+    assert "already trained: its outputs rewritten from" in log, log
+    benchmark = (work / "results" / "benchmarks" / "train" / "dpm" / "seed0.tsv").read_text()
+    seconds = float(benchmark.splitlines()[1].split("\t")[0])
+    assert seconds < 30, benchmark  # the rewrite: imports and the write, no epoch
+    assert (folder / "model.pt").read_bytes() == written
+
+
+@pytest.mark.slow
 def test_the_documented_command_resumes_after_kill_9(tmp_path: Path) -> None:
     """`snakemake --cores 2` killed with SIGKILL mid-run: the same command, with no extra flag,
     finishes the work, redoes no run Snakemake had recorded as finished, and leaves no

@@ -58,7 +58,8 @@ checkpoint training_health:
 
 rule draw:
     """Draw r of a model: its (r + 1)-th training that works, in seed order, up to
-    training.max_trainings (SPEC §4); the draw's folder is what every later rule reads."""
+    training.max_trainings (SPEC §4); the draw's folder is what every later rule reads. It
+    reads every consulted training (its record is checked against its files and the bar)."""
     input:
         unpack(W.draw_inputs),
     output:
@@ -73,13 +74,17 @@ rule draw:
         ),
         out=lambda wildcards, output: os.path.dirname(output.weights),
         cap=W.draw_max_trainings,
+        # the bar each consulted record's verdict is checked against (a changed bar re-decides
+        # the draws), and the records' content (a record changed in place does)
+        spec=lambda wildcards: job_spec("draw", specs.health(config, wildcards.model)),
+        records=W.draw_records,
     conda:
         CAPE_ENV
     log:
         paths.log("draw", paths.REP, "{model}.log"),
     shell:
         "cape draw --model {wildcards.model} --replicate {wildcards.replicate} {params.trainings}"
-        " --max-trainings {params.cap} --out {params.out:q} > {log:q} 2>&1"
+        " --max-trainings {params.cap} --out {params.out:q} --spec {params.spec:q} > {log:q} 2>&1"
 
 
 rule freeze:

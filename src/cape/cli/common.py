@@ -280,11 +280,48 @@ def _claim(args: argparse.Namespace, *outputs: Any) -> None:
     ownership.claim(outputs, f"cape {args.command}")
 
 
-def _files(paths: list[str], kind: str, suffixes: tuple[str, ...], option: str = "--out") -> list:
+def _files(
+    paths: list[str],
+    kind: str,
+    suffixes: tuple[str, ...],
+    option: str = "--out",
+    identity: str = "",
+) -> list:
     """The ``ownership.Output`` of each file of a repeatable output flag."""
     from cape.storage.ownership import Output
 
-    return [Output(Path(p), kind, suffixes=suffixes, option=option) for p in paths]
+    return [Output(Path(p), kind, identity, suffixes=suffixes, option=option) for p in paths]
+
+
+def _made_from(models: list[str], data: list[str], settings: Any) -> str:
+    """The identity of an output computed from trained models (``NAME=DIR``), data files and
+    settings (a typed specification): the models and their draws by name, and one digest of
+    their weights, the data's bytes and the settings."""
+    import hashlib
+
+    from cape.closedloop.provenance import model_replicate
+    from cape.models.trained import read_meta
+    from cape.specs import digest
+
+    named, parts = [], [digest(settings)]
+    for item in models:
+        name, sep, folder = item.partition("=")
+        if not sep:
+            continue  # _load_models says what --model takes
+        meta = read_meta(Path(folder))
+        try:
+            replicate = model_replicate(meta)
+        except (TypeError, ValueError):
+            replicate = None  # loading the model says what is wrong with it
+        named.append(name if replicate is None else f"{name} draw {replicate}")
+        parts.append(f"{name}:{meta.get('weights_sha256')}")
+    for path in data:
+        try:
+            parts.append(hashlib.sha256(Path(path).read_bytes()).hexdigest())
+        except OSError:
+            parts.append(f"unreadable:{path}")  # its reader says what is wrong, in one line
+    made = hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]
+    return f"of {', '.join(named) or 'no models'} [{made}]"
 
 
 PROVENANCE_COLUMNS = ("replicate", "weights_sha256")

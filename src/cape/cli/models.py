@@ -22,6 +22,7 @@ from cape.cli.common import (
     _config,
     _files,
     _load_models,
+    _made_from,
     _read_dataset,
     _with_provenance,
     bounded,
@@ -76,13 +77,16 @@ def cmd_train(args: argparse.Namespace) -> None:
     pin_before_torch(spec.kernels)  # MKL's and ATen's code paths are read when PyTorch loads
     pin_inductor(spec.kernels)
     from cape.models.checkpoint import save_model
-    from cape.models.training_run import run_training
+    from cape.models.training_run import planned_identity, run_training
 
     out = Path(args.out)  # --epochs, --threads, ... were checked (common.check_bounds)
-    _claim(args, _model_output(out, args.model, args.replicate))  # before training
+    training = planned_identity(spec, Path(args.data), args.seed, args.epochs, args.threads)
+    as_draw = "" if args.replicate is None else f" as draw {args.replicate}"
+    _claim(args, _training_output(out, training + as_draw))  # before reading, before training
+    dataset = _read_dataset(args.data)
     run = run_training(
         spec,
-        _read_dataset(args.data),
+        dataset,
         Path(args.data),
         out,
         seed=args.seed,
@@ -90,17 +94,31 @@ def cmd_train(args: argparse.Namespace) -> None:
         threads=args.threads,
         replicate=args.replicate,
         checkpoint_every=args.checkpoint_every,
+        identity=training,
     )
     result = run.result
-    if result.resumed_from:
+    if result.resumed_from >= len(result.losses):
+        print(f"already trained: its outputs rewritten from {run.checkpoint} (epoch "
+              f"{result.resumed_from})")  # fmt: skip
+    elif result.resumed_from:
         print(f"resumed from {run.checkpoint} after epoch {result.resumed_from}")
+    # the checkpoint of the last epoch stays: a rerun after a crash (Snakemake deletes the
+    # outputs of a job it had not recorded as finished) rewrites them from it in seconds
     save_model(run.model, out, run.meta, {paths.LOSSES: run.losses_csv.encode()})
-    run.checkpoint.unlink(missing_ok=True)  # done: the model replaces it
     print(
         f"{args.model}: best validation MSE {result.best_val_loss:.4e} "
         f"at epoch {result.best_epoch} "
         f"of {len(result.losses)}; {result.wall_seconds:.1f} s; saved to {out}"
     )
+
+
+def _training_output(out: Path, identity: str) -> Any:
+    """A training's folder as an output (``cape.storage.ownership``): its identity is its
+    model, seed and recipe digest (``cape.models.training_run.training_identity``)."""
+    from cape.storage.ownership import Output
+
+    files = (paths.WEIGHTS, paths.META, paths.LOSSES)
+    return Output(out, "trained model", identity, folder=True, files=files)
 
 
 def _model_output(out: Path, model: str, replicate: int | None) -> Any:
@@ -109,7 +127,8 @@ def _model_output(out: Path, model: str, replicate: int | None) -> Any:
     it."""
     from cape.storage.ownership import Output
 
-    return Output(out, "trained model", _model_identity(model, replicate), folder=True)
+    files = (paths.WEIGHTS, paths.META, paths.LOSSES)
+    return Output(out, "trained model", _model_identity(model, replicate), folder=True, files=files)
 
 
 def _model_identity(model: str, replicate: int | None) -> str:
@@ -133,11 +152,12 @@ def _check_training_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_check_training(args: argparse.Namespace) -> None:
     import json
 
+    from cape.models.draws import train_loss
     from cape.models.evaluate import one_step_rmse
     from cape.models.health import training_outcome
     from cape.models.trained import read_meta
     from cape.models.training import TrainingData
-    from cape.storage.io import read_csv, write_text
+    from cape.storage.io import write_text
     from cape.storage.ownership import Output
 
     settings = _spec(args)
@@ -150,18 +170,11 @@ def cmd_check_training(args: argparse.Namespace) -> None:
     data = TrainingData.from_dataset(
         _read_dataset(args.data), model.history, float(split["train_fraction"]), int(split["seed"])
     )
-    losses = read_csv(
-        folder / paths.LOSSES,
-        "train the model first (snakemake does)",
-        "not a loss curve ({reason}); delete the model folder and train again",
-    )
-    if "train_loss" not in losses:
-        raise CapeError(f"{folder / paths.LOSSES}: has no train_loss column; train the model again")
     outcome = training_outcome(
         name,
         int(meta["seed"]),
         one_step_rmse(model, data.val),
-        losses["train_loss"].tolist(),
+        train_loss(folder),  # as `cape draw` reads it again, to check the verdict
         settings.health,
         str(meta["weights_sha256"]),
     )
@@ -178,7 +191,8 @@ def _draw_arguments(p: argparse.ArgumentParser) -> None:
         action="append",
         required=True,
         metavar="DIR",
-        help="the model's trainings in seed order, each with its health.json (repeat)",
+        help="the model's trainings in seed order, each with its health.json (repeat; each "
+        "once, seeds strictly increasing)",
     )
     p.add_argument(
         "--max-trainings",
@@ -187,6 +201,7 @@ def _draw_arguments(p: argparse.ArgumentParser) -> None:
         help="training.max_trainings (the cap)",
     )
     p.add_argument("--out", required=True, help="the draw's model folder")
+    _add_config_args(p)  # training.health: each consulted record's verdict is checked again
 
 
 @command(
@@ -199,10 +214,13 @@ def cmd_draw(args: argparse.Namespace) -> None:
     from cape.storage.io import write_files
 
     out = Path(args.out)  # --replicate and --max-trainings were checked (common.check_bounds)
-    _claim(args, _model_output(out, args.model, args.replicate))
+    settings = _spec(args).health
+    # every refusal of the trainings given (twice, out of seed order, a record that does not
+    # check out) before anything is written, the output's claim included
     draw = make_draw(
-        args.model, args.replicate, args.max_trainings, [Path(t) for t in args.training]
+        args.model, args.replicate, args.max_trainings, [Path(t) for t in args.training], settings
     )
+    _claim(args, _model_output(out, args.model, args.replicate))
     write_files({out / name: content for name, content in draw.files.items()})
     choice = draw.choice
     said = "trained" if choice.trained else "failed (the cap was reached)"
@@ -314,7 +332,8 @@ def cmd_openloop(args: argparse.Namespace) -> None:
     from cape.storage.tables import write_table
 
     settings = _spec(args)
-    _claim(args, *_files(args.out, "open-loop error table", TABLE_SUFFIXES))
+    made = _made_from(args.model, [args.train_data, args.test_data], settings)
+    _claim(args, *_files(args.out, "open-loop error table", TABLE_SUFFIXES, identity=made))
     horizon = settings.multistep_horizon
     train, test = _read_dataset(args.train_data), _read_dataset(args.test_data)
     table = openloop_table(_load_models(args.model), train, test, settings.split, horizon)
@@ -358,7 +377,8 @@ def cmd_complexity(args: argparse.Namespace) -> None:
     from cape.storage.tables import write_table
 
     settings = _spec(args)
-    _claim(args, *_files(args.out, "complexity table", TABLE_SUFFIXES))
+    made = _made_from(args.model, [args.data], settings)
+    _claim(args, *_files(args.out, "complexity table", TABLE_SUFFIXES, identity=made))
     torch.set_num_threads(1)
     models = _load_models(args.model)
     data = _read_dataset(args.data)
@@ -402,8 +422,10 @@ def cmd_plot_models(args: argparse.Namespace) -> None:
     from cape.vehicle.params import GROUND_TRUTH
 
     settings = _spec(args)
-    figures = _files(args.phi_out, "figure of predicted Φ", FIGURE_SUFFIXES, "--phi-out")
-    figures += _files(args.curves_out, "figure of training curves", FIGURE_SUFFIXES, "--curves-out")
+    made = _made_from(args.model, [args.data], settings)
+    figures = _files(args.phi_out, "figure of predicted Φ", FIGURE_SUFFIXES, "--phi-out", made)
+    figures += _files(args.curves_out, "figure of training curves", FIGURE_SUFFIXES,
+                      "--curves-out", made)  # fmt: skip
     _claim(args, *figures)
     ts = settings.ts
     models = _load_models(args.model)

@@ -123,7 +123,7 @@ def cmd_rollout(args: argparse.Namespace) -> None:
     check_run(run)
     spec = RunSpec.from_config(_config(args), args.controller)
     out = Path(args.out)
-    _claim(args, _run_output(out, run))  # before the lap, not after it
+    _claim(args, _run_output(out, run, spec))  # before the lap, not after it
     check_replaceable(out, RUN_FILES, RUN_WHAT)
     record = run_job(
         spec,
@@ -146,11 +146,15 @@ def cmd_rollout(args: argparse.Namespace) -> None:
     print(f"{run_name}: {status}, lap time {metrics['lap_time']}")
 
 
-def _run_output(out: Path, run: Any) -> Any:
-    """A run folder as an output (``cape.storage.ownership``): the run ``run``."""
+def _run_output(out: Path, run: Any, spec: Any) -> Any:
+    """A run folder as an output (``cape.storage.ownership``): the run ``run`` with the
+    settings ``spec`` (its digest: the same run with other gains is another output)."""
+    from cape.layout.runs import RUN_FILES
+    from cape.specs import digest
     from cape.storage.ownership import Output
 
-    return Output(out, "run", "/".join(run.parts()), folder=True)
+    identity = f"{'/'.join(run.parts())} [settings {digest(spec)[:16]}]"
+    return Output(out, "run", identity, folder=True, files=tuple(RUN_FILES))
 
 
 def _plot_rollout_arguments(p: argparse.ArgumentParser) -> None:

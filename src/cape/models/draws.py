@@ -4,7 +4,10 @@ A model's k-th training trains with seed ``training.seed + k``; draw r is its (r
 that passed the checks (``health.json``), in seed order. When ``max_trainings`` run out, the
 remaining draws are its failed trainings in seed order, flagged ``trained: false``.
 ``choose_training`` asks for the outcomes it needs through a callback; draw r's first question
-is training r. Details: docs/modules.md.
+is training r. A record is checked, not trusted: read field by field for its type
+(``Outcome.from_dict``), and ``make_draw`` decides each consulted training's verdict again from
+the record's numbers and the training's files under the bar (``checked_outcome``). Details:
+docs/modules.md.
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,32 +50,106 @@ class Outcome:
 
     @classmethod
     def from_dict(cls, record: Mapping[str, Any], where: str) -> Outcome:
-        try:
-            if record.get("format") != HEALTH_FORMAT:
-                raise ValueError(f"format {record.get('format')!r}, not {HEALTH_FORMAT}")
-            return cls(
-                int(record["seed"]),
-                bool(record["trained"]),
-                tuple(str(r) for r in record["reasons"]),
-                {str(k): float(v) for k, v in record["val_rmse"].items()},
-                str(record["weights_sha256"]),
+        """The outcome a health record states, each field checked for its type (a string
+        ``"no"`` is no verdict): ``CapeError`` naming the file and the field otherwise."""
+
+        def refuse(problem: str) -> CapeError:
+            return CapeError(
+                f"{where}: not a training's health record ({problem}); rebuild it: delete it "
+                "and rerun snakemake"
             )
-        except (KeyError, TypeError, ValueError, AttributeError) as exc:
-            raise CapeError(
-                f"{where}: not a training's health record ({exc}); rebuild it with "
-                "`cape check-training` (snakemake does)"
-            ) from None
+
+        def field_of(name: str, kind: str, ok: Callable[[Any], bool]) -> Any:
+            if name not in record:
+                raise refuse(f"field {name!r} is missing")
+            value = record[name]
+            if not ok(value):
+                raise refuse(f"field {name!r} is {_shown(value)}, not {kind}")
+            return value
+
+        unknown = sorted(str(k) for k in record if k not in _FIELDS)
+        if unknown:
+            raise refuse(f"field {unknown[0]!r} is not one of a health record's")
+        field_of("format", f"{HEALTH_FORMAT}", lambda v: _is_int(v) and v == HEALTH_FORMAT)
+        seed = field_of("seed", "an integer", _is_int)
+        trained = field_of("trained", "true or false", lambda v: isinstance(v, bool))
+        reasons = field_of(
+            "reasons",
+            "a list of strings",
+            lambda v: isinstance(v, list) and all(isinstance(r, str) for r in v),
+        )
+        from cape.models.health import STATES
+
+        val_rmse = field_of(
+            "val_rmse",
+            "an object of a number (finite or not) for each of " + ", ".join(STATES),
+            lambda v: (
+                isinstance(v, dict)
+                and sorted(v) == sorted(STATES)
+                and all(_is_number(x) for x in v.values())
+            ),
+        )
+        digest = field_of(
+            "weights_sha256",
+            "a SHA-256 digest (64 hexadecimal digits)",
+            lambda v: isinstance(v, str) and _SHA256.fullmatch(v) is not None,
+        )
+        rmse = {str(k): float(v) for k, v in val_rmse.items()}
+        return cls(seed, trained, tuple(reasons), rmse, digest)
+
+
+_FIELDS = ("format", "seed", "trained", "reasons", "val_rmse", "weights_sha256")
+_SHA256 = re.compile(r"[0-9a-f]{64}")
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _shown(value: Any) -> str:
+    """A JSON value as a user reads it in a message: its JSON type and text (short)."""
+    kinds = {bool: "the boolean", str: "the string", int: "the integer", float: "the number",
+             list: "a list", dict: "an object", type(None): "null"}  # fmt: skip
+    kind = kinds.get(type(value), type(value).__name__)
+    if value is None or isinstance(value, (list, dict)):
+        return kind
+    text = json.dumps(value)
+    return f"{kind} {text[:40] + '…' if len(text) > 40 else text}"
+
+
+class _RepeatedFieldError(Exception):
+    pass
+
+
+def _once(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """A JSON object whose every key is given once (``json`` keeps the last of a repeated key:
+    a record holding ``"trained"`` twice would say two things)."""
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise _RepeatedFieldError(key)
+        out[key] = value
+    return out
 
 
 def read_outcome(path: str | Path) -> Outcome:
     """The health record at ``path`` (``CapeError`` naming the file when it is not one)."""
     path = Path(path)
     try:
-        record = json.loads(path.read_text())
+        record = json.loads(path.read_text(), object_pairs_hook=_once)
     except FileNotFoundError:
         raise CapeError(f"{path}: missing; `cape check-training` writes it") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise CapeError(f"{path}: unreadable ({exc}); delete it and rerun snakemake") from None
+    except _RepeatedFieldError as exc:
+        raise CapeError(
+            f"{path}: not a training's health record (field {exc.args[0]!r} is given twice); "
+            "rebuild it: delete it and rerun snakemake"
+        ) from None
     if not isinstance(record, dict):
         raise CapeError(f"{path}: not a training's health record (not a JSON object)")
     return Outcome.from_dict(record, str(path))
@@ -169,45 +247,169 @@ class Draw:
     files: Mapping[str, bytes]
 
 
-def make_draw(model: str, replicate: int, max_trainings: int, trainings: Sequence[Path]) -> Draw:
-    """Draw ``replicate`` of ``model`` from its ``trainings`` folders in seed order (SPEC §4):
-    the (r + 1)-th that works, or the cap's stand-in; ``CapeError`` when a training it must
-    consult is not given, or a folder's weights, metadata and health disagree."""
+@dataclass(frozen=True)
+class Training:
+    """One ``--training`` folder of ``cape draw``: its metadata and its weights' digest."""
+
+    folder: Path
+    meta: Mapping[str, Any]
+    weights_sha256: str
+
+    @property
+    def seed(self) -> int:
+        return int(self.meta["seed"])
+
+
+def given_trainings(model: str, folders: Sequence[Path]) -> list[Training]:
+    """The ``folders`` of ``model``'s trainings as ``cape draw`` is given them, each read once:
+    ``CapeError`` in one line for a folder that holds no ``model`` training whose weights
+    match its meta.json, a training given twice (the same folder, or the same weights in
+    another) and seeds not strictly increasing in the order given (draw r would be another
+    training than the model's (r + 1)-th that works)."""
     from cape.models.trained import read_meta
 
-    def outcome(k: int) -> Outcome:
-        if k >= len(trainings):
+    given: list[Training] = []
+    for folder in map(Path, folders):
+        if not folder.is_dir():
             raise CapeError(
-                f"draw {replicate} of {model} needs training {k}'s health, but only "
-                f"{len(trainings)} --training folders were given"
+                f"--training {folder}: no such folder; give the model's training folders "
+                "(snakemake makes them under results/trainings/)"
             )
-        return read_outcome(Path(trainings[k]) / paths.HEALTH)
+        meta = read_meta(folder)
+        weights = folder / paths.WEIGHTS
+        try:
+            digest = hashlib.sha256(weights.read_bytes()).hexdigest()
+        except OSError as exc:
+            raise CapeError(
+                f"{weights}: unreadable ({exc.strerror or exc}); train it again"
+            ) from None
+        if meta.get("name") != model or digest != meta.get("weights_sha256"):
+            raise CapeError(
+                f"{folder}: holds no {model} training whose weights match its meta.json"
+            )
+        if not _is_int(meta.get("seed")):
+            raise CapeError(
+                f"{folder / paths.META}: field 'seed' is {_shown(meta.get('seed'))}, not an "
+                "integer; delete the folder and train again"
+            )
+        training = Training(folder, meta, digest)
+        for earlier in given:
+            if earlier.folder.resolve() == folder.resolve():
+                raise CapeError(
+                    f"--training {folder}: given twice (also as --training {earlier.folder}); "
+                    "give each of the model's trainings once, in seed order"
+                )
+            if earlier.weights_sha256 == digest:
+                raise CapeError(
+                    f"--training {folder}: holds the weights of --training {earlier.folder} "
+                    f"(sha256 {digest[:12]}…); give each of the model's trainings once, in seed "
+                    "order"
+                )
+        if given and training.seed <= given[-1].seed:
+            raise CapeError(
+                f"--training {folder}: seed {training.seed} does not follow seed "
+                f"{given[-1].seed} of --training {given[-1].folder}; give the model's trainings "
+                "in seed order (strictly increasing seeds)"
+            )
+        given.append(training)
+    return given
 
-    choice = choose_training(replicate, max_trainings, outcome)
-    source = Path(trainings[choice.index])
-    meta = read_meta(source)
-    weights = (source / paths.WEIGHTS).read_bytes()
-    digest = hashlib.sha256(weights).hexdigest()
-    health = choice.consulted[choice.index]
-    if meta.get("name") != model or digest != meta.get("weights_sha256"):
-        raise CapeError(f"{source}: holds no {model} training whose weights match its meta.json")
-    if health.weights_sha256 != digest:
+
+def train_loss(folder: str | Path) -> list[float]:
+    """The training loss per epoch of the training in ``folder`` (its loss.csv), as the
+    health check reads it."""
+    from cape.storage.io import read_csv
+
+    losses = read_csv(
+        Path(folder) / paths.LOSSES,
+        "train the model first (snakemake does)",
+        "not a loss curve ({reason}); delete the model folder and train again",
+    )
+    if "train_loss" not in losses:
         raise CapeError(
-            f"{source}/{paths.HEALTH}: is about other weights than {source}/{paths.WEIGHTS}; "
+            f"{Path(folder) / paths.LOSSES}: has no train_loss column; train the model again"
+        )
+    return [float(x) for x in losses["train_loss"].tolist()]
+
+
+def checked_outcome(model: str, training: Training, settings: Mapping[str, Any]) -> Outcome:
+    """The health record of ``training``, checked rather than trusted: about this training
+    (its seed and weights) and with the verdict its own numbers give under the bar
+    ``settings`` (``training.health``): its ETHZ validation RMSE and the folder's loss.csv
+    through ``cape.models.health.training_checks`` again. ``CapeError`` in one line
+    naming the record otherwise."""
+    from cape.models.health import training_checks
+
+    path = training.folder / paths.HEALTH
+    outcome = read_outcome(path)
+    if outcome.seed != training.seed:
+        raise CapeError(
+            f"{path}: is about seed {outcome.seed}, but {training.folder / paths.META} "
+            f"trained seed {training.seed}; delete it and rerun snakemake"
+        )
+    if outcome.weights_sha256 != training.weights_sha256:
+        raise CapeError(
+            f"{path}: is about other weights than {training.folder / paths.WEIGHTS}; "
             "delete it and rerun snakemake"
         )
+    reasons = tuple(training_checks(model, outcome.val_rmse, train_loss(training.folder), settings))
+    if (outcome.trained, outcome.reasons) != (not reasons, reasons):
+        raise CapeError(
+            f"{path}: says {_verdict(outcome.trained, outcome.reasons)}, but its numbers and "
+            f"{training.folder / paths.LOSSES} under training.health say "
+            f"{_verdict(not reasons, reasons)}: its verdict does not follow from its numbers; "
+            "delete it and rerun snakemake"
+        )
+    return outcome
+
+
+def _verdict(trained: bool, reasons: Sequence[str]) -> str:
+    said = "trained" if trained else "failed"
+    return said + (f" ({'; '.join(reasons)})" if reasons else "")
+
+
+def make_draw(
+    model: str,
+    replicate: int,
+    max_trainings: int,
+    trainings: Sequence[Path],
+    settings: Mapping[str, Any],
+) -> Draw:
+    """Draw ``replicate`` of ``model`` from its ``trainings`` folders in seed order (SPEC §4):
+    the (r + 1)-th that works, or the cap's stand-in, under the health checks' ``settings``
+    (``training.health``). Reads, never writes: ``CapeError`` for trainings given twice or
+    out of seed order (``given_trainings``), when a training it must consult is not given,
+    or a consulted training's record does not check out (``checked_outcome``)."""
+    given = given_trainings(model, trainings)
+
+    def outcome(k: int) -> Outcome:
+        if k >= len(given):
+            raise CapeError(
+                f"draw {replicate} of {model} needs training {k}'s health, but only "
+                f"{len(given)} --training folders were given"
+            )
+        return checked_outcome(model, given[k], settings)
+
+    choice = choose_training(replicate, max_trainings, outcome)
+    source = given[choice.index]
+    meta = dict(source.meta)
     meta["replicate"] = replicate
     meta["draw"] = {
-        "training": str(source),
+        "training": str(source.folder),
         "index": choice.index,
         "trained": choice.trained,
         "cap_reached": choice.cap_reached,
         "max_trainings": max_trainings,
         "trainings": [o.to_dict() for o in choice.consulted],
     }
+    weights = (source.folder / paths.WEIGHTS).read_bytes()
+    if hashlib.sha256(weights).hexdigest() != source.weights_sha256:
+        raise CapeError(
+            f"{source.folder / paths.WEIGHTS}: changed while the draw read it; run again"
+        )
     files = {
         paths.WEIGHTS: weights,
-        paths.LOSSES: (source / paths.LOSSES).read_bytes(),
+        paths.LOSSES: (source.folder / paths.LOSSES).read_bytes(),
         paths.META: (json.dumps(meta, indent=2, sort_keys=True) + "\n").encode(),
     }
     return Draw(choice, files)

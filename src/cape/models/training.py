@@ -146,7 +146,8 @@ def train_model(
     compiled by ``torch.compile`` (``training_loss``: the same recipe; losses follow eager
     ones to rounding). Every step sees a full batch (``PaddedBatches``: the last one padded
     with rows of mask 0), so the compiled graph has one shape.
-    ``checkpoint``: resume from it if it exists, and write it every ``every_seconds``."""
+    ``checkpoint``: resume from it if it exists, write it every ``every_seconds`` and after
+    the last epoch (a checkpoint of the last epoch resumes to the finished result at once)."""
     torch.set_num_threads(threads)
     torch.use_deterministic_algorithms(True)
     model = build_model(name, spec, ts, seed)
@@ -215,7 +216,10 @@ def train_model(
             refresh=False,  # the bar's own interval decides when to redraw
         )
         now = time.perf_counter()
-        if checkpoint is not None and epoch < n_epochs and now - saved >= checkpoint.every_seconds:
+        # every `every_seconds`, and always after the last epoch: a finished training's
+        # checkpoint is kept, so a rerun after a crash rewrites its outputs in seconds
+        due = epoch == n_epochs or now - saved >= (checkpoint.every_seconds if checkpoint else 0)
+        if checkpoint is not None and due:
             checkpoint.save({
                 "model": model.state_dict(),
                 "optimiser": optimiser.state_dict(),

@@ -17,6 +17,7 @@ from typing import Any
 import torch
 
 from cape.config import PRESENTATION_KEYS
+from cape.errors import CapeError
 from cape.models.base import LearnedModel
 from cape.models.kernels import in_effect
 from cape.models.trained import FORMAT_VERSION
@@ -34,8 +35,8 @@ from cape.specs.training import TrainingSpec
 @dataclass
 class TrainingRun:
     """A finished training: the network, its ``meta.json`` record, its loss curve as
-    ``loss.csv`` text, and where its resumable checkpoint was (deleted once the model is
-    saved)."""
+    ``loss.csv`` text, and its resumable checkpoint (kept at the last epoch: a rerun
+    rewrites the outputs from it)."""
 
     model: LearnedModel
     meta: dict[str, Any]
@@ -56,10 +57,12 @@ def run_training(
     replicate: int | None = None,
     checkpoint_every: float | None = None,
     announce: Any = print,
+    identity: str | None = None,
 ) -> TrainingRun:
     """Train ``spec``'s model on ``dataset`` (read from ``data_path``), checkpointing into
     ``out``; the options override the spec's seed, epoch count, threads and checkpoint
-    interval. ``announce`` receives one line before training."""
+    interval. ``announce`` receives one line before training; ``identity``, when given, is
+    the one claimed for ``out`` (``planned_identity``), checked against what is trained."""
     name, entry = spec.model, dict(spec.entry)
     seed = int(seed if seed is not None else spec.seed)
     split = spec.split
@@ -71,6 +74,8 @@ def run_training(
     compiled = bool((spec.compile or {}).get("enabled", False))
     kernels = in_effect(spec.kernels)
     fingerprint = _fingerprint(spec, seed, epochs, threads, data_sha256)
+    if identity is not None and training_identity(spec.model, seed, fingerprint) != identity:
+        raise CapeError(f"{data_path}: changed while the training started; train it again")
     every = float(spec.checkpoint_every if checkpoint_every is None else checkpoint_every)
     checkpoint = Checkpointing(out / f"checkpoint-{fingerprint[:16]}.pt", fingerprint, every)
     announce(
@@ -91,6 +96,7 @@ def run_training(
     )
     meta = {  # in this order in meta.json
         "seed": seed,
+        "training_fingerprint": fingerprint,
         "replicate": replicate,
         **_outcome(result),
         "threads": threads,
@@ -114,6 +120,31 @@ def run_training(
         result,
         checkpoint.path,
     )
+
+
+def training_identity(model: str, seed: int, fingerprint: str) -> str:
+    """A training's identity as its folder's owner record names it: the model, the seed and
+    the digest of everything else its numbers depend on (recipe, data, threads, kernels)."""
+    return f"{model} seed {seed} [{fingerprint[:16]}]"
+
+
+def planned_identity(
+    spec: TrainingSpec,
+    data_path: Path,
+    seed: int | None = None,
+    epochs: int | None = None,
+    threads: int | None = None,
+) -> str:
+    """The identity of the training ``run_training`` would do with these arguments (with an
+    unreadable data file: an identity no training has; reading it says what is wrong)."""
+    seed = int(seed if seed is not None else spec.seed)
+    threads = int(threads or spec.threads)
+    try:
+        data_sha256 = hashlib.sha256(data_path.read_bytes()).hexdigest()
+    except OSError:
+        data_sha256 = "unreadable"
+    fingerprint = _fingerprint(spec, seed, epochs, threads, data_sha256)
+    return training_identity(spec.model, seed, fingerprint)
 
 
 def _outcome(result: TrainingResult) -> dict[str, Any]:

@@ -28,9 +28,9 @@ folder's metrics.json, a model folder's meta.json), or None when it is not one o
 
 @dataclass(frozen=True)
 class Output:
-    """An output to claim: its path, what it is (``kind``), which one (``identity``; empty
-    when any output of the kind is the same, e.g. a table), the suffixes a file may have
-    (empty: any) and whether it is a folder. ``option`` names it in messages."""
+    """An output to claim: its path, what it is (``kind``), which one (``identity``: what made
+    it, e.g. a training's seed and recipe digest), the suffixes a file may have (empty: any)
+    and whether it is a folder. ``option`` names it in messages."""
 
     path: Path
     kind: str
@@ -39,6 +39,9 @@ class Output:
     folder: bool = False
     option: str = "--out"
     recognise: Recognise | None = field(default=None, compare=False)
+    files: tuple[str, ...] = ()
+    """A folder's own files: with none of them left (Snakemake deletes a job's outputs before
+    it reruns it), the folder of an output of this kind is free for another identity."""
 
     def described(self) -> str:
         return f"{self.kind} {self.identity}".strip()
@@ -109,12 +112,34 @@ def _protected(path: Path) -> str | None:
     return None
 
 
+OWNER_FORMAT = "cape-owner/1"
+
+
 def _read_owner(record: Path) -> tuple[str, str] | None:
+    """The kind and identity an owner record names; None when there is none (no file, or an
+    empty one: a claim interrupted before it wrote); ``NotOursError`` when the file is not one."""
     try:
-        body = json.loads(record.read_text())
-        return str(body["kind"]), str(body["identity"])
-    except (OSError, ValueError, KeyError, TypeError):
+        text = record.read_text()
+    except FileNotFoundError:
         return None
+    except (OSError, UnicodeDecodeError):
+        raise NotOursError(record) from None
+    if not text:
+        return None
+    try:
+        body = json.loads(text)
+    except ValueError:
+        raise NotOursError(record) from None
+    fields = ("kind", "identity", "written_by")
+    if not isinstance(body, dict) or not all(isinstance(body.get(k), str) for k in fields):
+        raise NotOursError(record)
+    if body.get("format", OWNER_FORMAT) != OWNER_FORMAT:  # records before the format: ours
+        raise NotOursError(record)
+    return body["kind"], body["identity"]
+
+
+class NotOursError(Exception):
+    """A file named as an owner record that no CAPE command wrote."""
 
 
 def _refuse(out: Output, why: str) -> CapeError:
@@ -145,14 +170,22 @@ def _check_place(out: Output) -> None:
 
 
 def _check_owner(out: Output, record: Path) -> None:
-    """Refuse unless the output is absent, an empty folder, or the same output."""
+    """Refuse unless the output is absent, an empty folder, or the same output; and a file
+    at the owner record's name that is not one (a user's, never overwritten)."""
     path = out.path
+    try:
+        owner = _read_owner(record)
+    except NotOursError:
+        raise _refuse(out, f"{record} is not an owner record CAPE wrote (a file of yours?), "
+                           "and CAPE keeps its record of this output there; rename that file, "
+                           "or give another path") from None  # fmt: skip
     if not path.exists() or (out.folder and _empty(path)):
         return
-    owner = _read_owner(record)
     if owner is not None:
         if owner == (out.kind, out.identity):
             return
+        if out.files and owner[0] == out.kind and not any((path / f).exists() for f in out.files):
+            return  # its own files deleted: what is left is no output of that identity
         kind, identity = owner
         raise _refuse(out, f"holds {f'{kind} {identity}'.strip()}, not {out.described()}, "
                            "so it is not this command's to replace; give another path")  # fmt: skip
@@ -239,7 +272,8 @@ def claim(outputs: Sequence[Output], command: str) -> None:
             _check_owner(out, record)
         for entry in held:
             out = entry.output
-            body = {"kind": out.kind, "identity": out.identity, "written_by": command}
+            body = {"format": OWNER_FORMAT, "kind": out.kind, "identity": out.identity,
+                    "written_by": command}  # fmt: skip
             data = (json.dumps(body, sort_keys=True) + "\n").encode()
             os.ftruncate(entry.fd, 0)
             os.pwrite(entry.fd, data, 0)

@@ -8,10 +8,12 @@ seed)``, a training's health record through the checkpoint (its outcome decides 
 
 from __future__ import annotations
 
+import hashlib
+import os
 import shlex
 import sys
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -23,6 +25,7 @@ from cape.layout.names import TRUTH, PlantName, plant_names
 from cape.layout.runs import RunId
 from cape.models.draws import (
     Choice,
+    Outcome,
     choose_training,
     deciding_cap,
     default_max_trainings,
@@ -74,6 +77,10 @@ def refusals() -> Iterator[None]:
     except CapeError as error:
         print(f"error: {one_line(str(error))}", file=sys.stderr)  # as `cape` says it
         raise SystemExit(1) from None
+
+
+class _MissingRecordError(Exception):
+    """A health record a draw asks for is neither made nor being read (``draw_inputs``)."""
 
 
 @dataclass(frozen=True)
@@ -208,19 +215,55 @@ class StudyWorkflow:
         """The cap a draw is made under (cape.models.draws.deciding_cap)."""
         return deciding_cap(self.draw_choice(wildcards), self.max_trainings)
 
-    def draw_inputs(self, wildcards: Any) -> dict[str, Any]:
-        """The trainings draw r of a model is chosen among: the chosen one's files and every
-        consulted training's health record."""
+    def draw_records(self, wildcards: Any) -> str:
+        """The content of the health records draw r of a model is chosen by, as a digest (a
+        param of the draw rule: a record changed in place re-decides the draw, whatever its
+        file's time)."""
         model = wildcards.model
-        choice = self.draw_choice(wildcards)
-        chosen = paths.training_dir(model, choice.consulted[choice.index].seed)
+        digest = hashlib.sha256()
+        for k in range(len(self.draw_choice(wildcards).consulted)):
+            with open(self.health(model, self.training_seed(k)), "rb") as record:
+                digest.update(hashlib.sha256(record.read()).digest())
+        return digest.hexdigest()[:16]
+
+    def draw_inputs(self, wildcards: Any) -> dict[str, Any]:
+        """The trainings draw r of a model is chosen among: every consulted training's health
+        record, weights, metadata and loss curve (`cape draw` checks each record against them),
+        in seed order.
+
+        A record the draw needs that is still to be made is Snakemake's checkpoint target
+        while its file exists (Snakemake reads it when it updates the checkpoint's dependents),
+        but a plain input once the file is missing: a job with a checkpoint target among its
+        inputs is exempt from every rerun trigger of its own (its outputs' age, params, input
+        set), so a draw whose record changed such that it now needs a training not yet made
+        was left as it was ("Nothing to be done"); as a plain input the draw is rerun, and it is
+        planned again when the record is made (Snakemake updates a checkpoint's dependents when
+        it finishes)."""
+        from snakemake.exceptions import IncompleteCheckpointException
+
+        model = wildcards.model
+        read: dict[int, str] = {}  # training index → its record, as the draw asked for them
+        missing: list[str] = []
+
+        def outcome(k: int) -> Outcome:
+            try:
+                record = self.health(model, self.training_seed(k))
+            except IncompleteCheckpointException as pending:
+                if os.path.exists(pending.targetfile):
+                    raise
+                missing.append(str(pending.targetfile))
+                raise _MissingRecordError from None
+            read[k] = record
+            return read_outcome(record)
+
+        with suppress(_MissingRecordError):  # planned again once that record is made
+            choose_training(int(wildcards.replicate), self.max_trainings, outcome)
+        folders = [os.path.dirname(read[k]) for k in sorted(read)]  # seed order
         return {
-            "health": [
-                f"{paths.training_dir(model, o.seed)}/{paths.HEALTH}" for o in choice.consulted
-            ],
-            "weights": f"{chosen}/{paths.WEIGHTS}",
-            "meta": f"{chosen}/{paths.META}",
-            "losses": f"{chosen}/{paths.LOSSES}",
+            "health": [read[k] for k in sorted(read)] + missing,
+            "weights": [f"{f}/{paths.WEIGHTS}" for f in folders],
+            "meta": [f"{f}/{paths.META}" for f in folders],
+            "losses": [f"{f}/{paths.LOSSES}" for f in folders],
         }
 
     def trained_models(self, replicate: int = 0) -> list[str]:
