@@ -189,12 +189,12 @@ def main() -> int:
     with json_output(args.json, "scheduler_threads") as write:
         results = toy(args.toy, args.nproc) if args.toy else []
         if args.study:
-            command = ["snakemake", "--cores", "2"]
+            command = ["snakemake", "--cores", "2", *args.study]  # targets before the options
             for configfile in args.configfile:
                 command += ["--configfile", configfile]
             log = Path(tempfile.mkstemp(prefix="cape-threads-", suffix=".log")[1])
             label = f"CAPE workflow: {' '.join(args.study)}"
-            results.append(sample(label, command + args.study, Path.cwd(), args.nproc, log))
+            results.append(sample(label, command, Path.cwd(), args.nproc, log))
             print(f"(its log: {log})")
         limit = f"ulimit -u {args.nproc}" if args.nproc else "no thread limit"
         print(f"snakemake's own process, sampled every 0.2 s ({limit}):")

@@ -23,6 +23,44 @@ def snakemake(*args: str, cwd: Path = REPO_ROOT, timeout: float = 300):
     )
 
 
+def threads_of(pid: int) -> int | None:
+    """The thread count of process ``pid`` (Linux's /proc), None when it cannot be read."""
+    try:
+        with open(f"/proc/{pid}/status") as status:
+            for line in status:
+                if line.startswith("Threads:"):
+                    return int(line.split()[1])
+    except OSError:
+        return None
+    return None
+
+
+def sampled_snakemake(*args: str, cwd: Path = REPO_ROOT, timeout: float = 300):
+    """``snakemake(*args)``, and the most threads its own process held (sampled every 0.1 s;
+    None where /proc cannot tell)."""
+    import tempfile
+    import time
+
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        command = ["snakemake", "-s", str(REPO_ROOT / "Snakefile"), *args]
+        process = subprocess.Popen(command, cwd=cwd, stdout=out, stderr=err, text=True)
+        most: int | None = None
+        deadline = time.monotonic() + timeout
+        while process.poll() is None:
+            if time.monotonic() > deadline:
+                process.kill()
+                process.wait()
+                raise subprocess.TimeoutExpired(command, timeout)
+            n = threads_of(process.pid)
+            if n is not None:
+                most = max(most or 0, n)
+            time.sleep(0.1)
+        out.seek(0)
+        err.seek(0)
+        result = subprocess.CompletedProcess(command, process.returncode, out.read(), err.read())
+    return result, most
+
+
 def one_message(result: subprocess.CompletedProcess, *needles: str) -> str:
     """The command failed with exit status 2 and one message holding every needle."""
     err = result.stderr

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from commands import cape, snakemake
+from commands import cape, sampled_snakemake
 
 from cape.config import REPO_ROOT, load_config
 from cape.data.bayesrace import ProtocolSettings, generate_dataset
@@ -117,9 +117,14 @@ def smoke_study(tmp_path_factory: pytest.TempPathFactory) -> Path:
     work = workdir(tmp_path_factory.mktemp("smoke"))
     shutil.copy(REPO_ROOT / "config" / "smoke.yaml", work / "config" / "smoke.yaml")
     # about 5 minutes on 2 idle cores; the timeout only guards against a hang
-    result = snakemake(
+    result, threads = sampled_snakemake(
         "--cores", "2", "-d", str(work), "all", "replicates", "--configfile", "config/smoke.yaml",
         timeout=1800,
     )  # fmt: skip
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    SMOKE_THREADS.append(threads)  # the most threads snakemake's own process held
     return work
+
+
+SMOKE_THREADS: list[int | None] = []
+"""The most threads the smoke study's `snakemake` process held (tests/test_workflow.py)."""

@@ -239,6 +239,71 @@ def test_the_setup_notebook_shows_the_figure_and_tables_it_saves(tmp_path: Path)
     assert "Study set-up" in text and "Table 3" in text  # ... and the rest of the page
 
 
+SCHEDULER_THREADS = 40
+"""The most threads the `snakemake` process may hold (docs/cluster.md): it held 139 on the smoke
+study and 660 to 785 on the replicated one before its wake-up timers were bounded."""
+
+
+@pytest.mark.slow
+def test_snakemake_holds_a_bounded_number_of_threads(smoke_study: Path) -> None:
+    """Snakemake 9.27 starts a timer thread on every pass of its scheduler; CAPE keeps one
+    pending (cape/workflow/scheduler.py), so the smoke study's 300-odd jobs leave the
+    process with a few threads, not hundreds."""
+    from conftest import SMOKE_THREADS
+
+    (threads,) = SMOKE_THREADS
+    if threads is None:
+        pytest.skip("no /proc to read a thread count from")
+    assert 0 < threads < SCHEDULER_THREADS
+
+
+def test_a_refused_wakeup_thread_wakes_the_scheduler_at_once(monkeypatch) -> None:
+    """A machine that will not start the timer's thread (ulimit -u reached) slows the
+    scheduler for a moment, never crashes it."""
+    import threading
+
+    from snakemake.scheduling.job_scheduler import JobScheduler
+
+    from cape.workflow import scheduler
+
+    assert scheduler.bound_wakeup_timers()
+
+    class Loop:
+        _open_jobs = threading.Semaphore(0)
+
+    def refuse(self: threading.Thread) -> None:
+        raise RuntimeError("can't start new thread")
+
+    monkeypatch.setattr(threading.Timer, "start", refuse)
+    loop = Loop()
+    JobScheduler._schedule_reevalutation(loop, 0.01)
+    assert loop._open_jobs.acquire(timeout=2)  # woken, and a later pass may try again
+    assert not loop.__dict__["_cape_timer_pending"]
+
+
+def test_one_timer_is_pending_however_often_a_pass_asks(monkeypatch) -> None:
+    import threading
+
+    from snakemake.scheduling.job_scheduler import JobScheduler
+
+    from cape.workflow import scheduler
+
+    assert scheduler.bound_wakeup_timers()
+
+    class Loop:
+        _open_jobs = threading.Semaphore(0)
+
+    loop = Loop()
+    before = threading.active_count()
+    for _ in range(200):
+        JobScheduler._schedule_reevalutation(loop, 0.3)
+    assert threading.active_count() - before <= 1
+    assert loop._open_jobs.acquire(timeout=5)  # the one timer wakes the loop
+    assert not loop._open_jobs.acquire(timeout=0.5)  # and only once
+    JobScheduler._schedule_reevalutation(loop, 0.01)  # after it fired, a pass sets a new one
+    assert loop._open_jobs.acquire(timeout=5)
+
+
 @pytest.mark.slow
 def test_the_smoke_study_builds_every_table_figure_and_notebook(smoke_study: Path) -> None:
     """Every output of `snakemake` exists, every notebook ran, and every run of the grid is in

@@ -80,11 +80,43 @@ def describe_os_error(exc: OSError) -> str:
     return f"{where}{what} ({fix}; no file was left half-written)"
 
 
+def _limit(resource_id: int) -> str:
+    import resource
+
+    soft = resource.getrlimit(resource_id)[0]
+    return "unlimited" if soft == resource.RLIM_INFINITY else str(soft)
+
+
+def shortage(exc: BaseException) -> str | None:
+    """One line for a machine that ran short (no thread, process or memory to be had), naming
+    the resource and this process's limit; None for any other error."""
+    import resource
+
+    text = str(exc)
+    threads = isinstance(exc, RuntimeError) and "can't start new thread" in text
+    if threads or (isinstance(exc, OSError) and exc.errno == errno.EAGAIN):
+        return (f"the machine would not start another thread or process (ulimit -u: "
+                f"{_limit(resource.RLIMIT_NPROC)} for this user); end other programs or ask "
+                "for a higher limit, then run it again")  # fmt: skip
+    memory = isinstance(exc, MemoryError) or (
+        isinstance(exc, OSError) and exc.errno == errno.ENOMEM
+    )
+    if memory or (isinstance(exc, RuntimeError) and "can't allocate memory" in text):
+        return (f"out of memory (ulimit -v: {_limit(resource.RLIMIT_AS)} kB; a job's mem_mb "
+                "or the machine's memory); free memory or give the job more, then run it "
+                "again")  # fmt: skip
+    return None
+
+
 def told(exc: BaseException) -> tuple[int, str]:
-    """How a command ends on ``exc``: its exit status and its one line. A ``CapeError`` or a
-    failed read or write (a full disk) is 2 and the message; Ctrl-C 130, SIGTERM 143."""
+    """How a command ends on ``exc``: its exit status and its one line. A ``CapeError``, a
+    failed read or write (a full disk) or a machine that ran short of threads or memory is 2
+    and the message; Ctrl-C 130, SIGTERM 143."""
     if isinstance(exc, CapeError):
         return 2, f"error: {one_line(str(exc))}"
+    short = shortage(exc)
+    if short is not None:
+        return 2, f"error: {short}; no output was left half-written"
     if isinstance(exc, OSError):
         return 2, f"error: {one_line(describe_os_error(exc))}"
     if isinstance(exc, Interrupted):
@@ -109,6 +141,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.func(args)
         succeeded = True
     except (CapeError, OSError, KeyboardInterrupt, Interrupted) as exc:
+        status, message = told(exc)
+        print(f"cape {args.command}: {message}", file=sys.stderr)
+        return status
+    except (MemoryError, RuntimeError) as exc:
+        if shortage(exc) is None:
+            raise  # a bug: its traceback
         status, message = told(exc)
         print(f"cape {args.command}: {message}", file=sys.stderr)
         return status

@@ -9,10 +9,28 @@ docs/cluster.md ("What the snakemake process needs"); the reproduction: docs/ups
 
 from __future__ import annotations
 
+import sys
 import threading
+import time
 from typing import Any
 
 _PATCHED = "_cape_one_wakeup_timer"
+
+
+def _short_of_threads() -> None:
+    """Say once, in one line, that the machine refused a thread."""
+    global _SAID
+    if not _SAID:
+        import resource
+
+        soft = resource.getrlimit(resource.RLIMIT_NPROC)[0]
+        limit = "unlimited" if soft == resource.RLIM_INFINITY else soft
+        print(f"CAPE: the machine refused snakemake a thread (ulimit -u: {limit}); it goes on "
+              "without its wake-up timer", file=sys.stderr)  # fmt: skip
+        _SAID = True
+
+
+_SAID = False
 
 
 def bound_wakeup_timers() -> bool:
@@ -43,7 +61,14 @@ def bound_wakeup_timers() -> bool:
 
         timer = threading.Timer(delay, wake)
         timer.daemon = True
-        timer.start()
+        try:
+            timer.start()
+        except RuntimeError:  # no thread to be had (ulimit -u): wake at once, never crash
+            with lock:
+                self._cape_timer_pending = False
+            _short_of_threads()
+            time.sleep(min(delay, 1.0))  # what the timer would have waited
+            self._open_jobs.release()
 
     setattr(schedule_one, _PATCHED, True)
     JobScheduler._schedule_reevalutation = schedule_one  # type: ignore[method-assign]
