@@ -164,3 +164,21 @@ def test_a_users_owner_named_file_stops_the_real_command(setup: dict, tmp_path: 
     one_message(result, ".t.png.owner", "not an owner record CAPE wrote")
     assert (out / ".t.png.owner").read_text() == "mine\n"
     assert sorted(p.name for p in out.iterdir()) == [".t.png.owner"]
+
+
+def test_a_table_of_runs_is_not_replaced_by_one_of_other_runs(
+    setup: dict, run: dict, tmp_path: Path
+) -> None:
+    other = tmp_path / "truth" / "pid" / "eta0" / "seed1"
+    made = cape(*rollout_args(setup, other, seed="1")[1:])
+    assert made.returncode == 0, made.stderr
+    tables = ["--out", str(tmp_path / "runs.parquet"), "--summary", str(tmp_path / "cells.parquet"),
+              "--config", str(setup["config"])]  # fmt: skip
+    first = cape("aggregate", str(run["out"] / "metrics.json"), *tables)
+    assert first.returncode == 0, first.stderr
+    kept = (tmp_path / "runs.parquet").read_bytes()
+    refused = cape("aggregate", str(other / "metrics.json"), *tables)
+    one_message(refused, "holds table of runs of 1 runs [", "nothing was changed")
+    assert (tmp_path / "runs.parquet").read_bytes() == kept
+    again = cape("aggregate", str(run["out"] / "metrics.json"), *tables)
+    assert again.returncode == 0, again.stderr

@@ -52,9 +52,6 @@ def cmd_aggregate(args: argparse.Namespace) -> None:
     from cape.study.grid import study_grid
 
     spec = StudySpec.from_config(_config(args))
-    _claim(args, Output(Path(args.out), "table of runs", suffixes=(".parquet",)),
-           Output(Path(args.summary), "summary of cells", suffixes=(".parquet",),
-                  option="--summary"))  # fmt: skip
     named = [Path(p) for p in args.runs]
     if args.runs_from:
         named += [Path(line) for line in Path(args.runs_from).read_text().split() if line]
@@ -67,6 +64,10 @@ def cmd_aggregate(args: argparse.Namespace) -> None:
         pairs = [(run.study, computed.folder(args.root) / paths.METRICS, computed, run.replicate)
                  for run, computed in grid.items()
                  if read is None or run.replicate in read]  # fmt: skip
+    made = _made_from_runs(pairs, spec, args.models_root)
+    _claim(args, Output(Path(args.out), "table of runs", made, suffixes=(".parquet",)),
+           Output(Path(args.summary), "summary of cells", made, suffixes=(".parquet",),
+                  option="--summary"))  # fmt: skip
     runs = collect_runs(pairs, spec.internal_studies(), args.models_root)
     summary = summarise(runs)
     # both tables or neither: a new runs.parquet never stands beside an old summary
@@ -76,3 +77,17 @@ def cmd_aggregate(args: argparse.Namespace) -> None:
     ok = int(runs["success"].sum())
     print(f"{len(runs)} runs ({ok} laps, {len(runs) - ok} failures) → {args.out}; "
           f"{len(summary)} cells → {args.summary}")  # fmt: skip
+
+
+def _made_from_runs(pairs: list[tuple[Any, ...]], spec: Any, models_root: str | None) -> str:
+    """The identity of an aggregation: how many runs, and one digest of which runs (their
+    metrics files, the studies they are read for), the grid's settings and the models root."""
+    import hashlib
+    import os
+
+    from cape.specs import digest
+
+    lines = sorted(f"{pair[0]}|{os.path.abspath(pair[1])}" for pair in pairs)
+    lines += [digest(spec), str(models_root)]
+    made = hashlib.sha256("\n".join(lines).encode()).hexdigest()[:16]
+    return f"of {len(pairs)} runs [{made}]"
