@@ -36,6 +36,7 @@ from pathlib import Path
 from _common import json_output, run
 
 from cape.errors import CapeError
+from cape.workflow.scheduler import threads_of
 
 TOY = """\
 {bound}
@@ -59,17 +60,6 @@ class Sampled:
     cpu_s: float
     wall_s: float
     returncode: int
-
-
-def _threads(pid: int) -> int | None:
-    try:
-        with open(f"/proc/{pid}/status") as status:
-            for line in status:
-                if line.startswith("Threads:"):
-                    return int(line.split()[1])
-    except OSError:
-        return None
-    return None
 
 
 def _cpu(pid: int) -> float | None:
@@ -135,7 +125,7 @@ def sample(label: str, command: Sequence[str], cwd: Path, nproc: int | None, log
             preexec_fn=_limit(nproc, group),
         )
         while proc.poll() is None:
-            n, c = _threads(proc.pid), _cpu(proc.pid)
+            n, c = threads_of(proc.pid), _cpu(proc.pid)
             if n is not None:
                 threads.append(n)
             if c is not None:

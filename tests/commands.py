@@ -23,23 +23,13 @@ def snakemake(*args: str, cwd: Path = REPO_ROOT, timeout: float = 300):
     )
 
 
-def threads_of(pid: int) -> int | None:
-    """The thread count of process ``pid`` (Linux's /proc), None when it cannot be read."""
-    try:
-        with open(f"/proc/{pid}/status") as status:
-            for line in status:
-                if line.startswith("Threads:"):
-                    return int(line.split()[1])
-    except OSError:
-        return None
-    return None
-
-
 def sampled_snakemake(*args: str, cwd: Path = REPO_ROOT, timeout: float = 300):
     """``snakemake(*args)``, and the most threads its own process held (sampled every 0.1 s;
     None where /proc cannot tell)."""
     import tempfile
     import time
+
+    from cape.workflow.scheduler import threads_of
 
     with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
         command = ["snakemake", "-s", str(REPO_ROOT / "Snakefile"), *args]
