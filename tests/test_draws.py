@@ -196,10 +196,9 @@ def test_check_training_and_draw_through_the_command(
     assert (out / "model.pt").read_bytes() == (folders[1] / "model.pt").read_bytes()
     before = (out / "meta.json").read_bytes()
     other = cape(*args[:4], "0", *args[5:], *trainings, "--out", str(out))
-    assert (
-        other.returncode == 2
-        and "dpm of replicate 1, not trained model dpm of replicate 0" in other.stderr
-    )
+    assert other.returncode == 2, other.stderr
+    assert "holds trained model dpm of replicate 1 [seeds" in other.stderr
+    assert "not trained model dpm of replicate 0 [seeds" in other.stderr
     assert (out / "meta.json").read_bytes() == before
     short = cape(*args, "--training", str(folders[0]), "--out", str(tmp_path / "x"))
     assert short.returncode == 2 and "needs training 1's health" in short.stderr

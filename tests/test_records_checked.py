@@ -55,7 +55,10 @@ def _draw(out: Path, replicate: int, *folders: Path, config: Path | None = None)
 
 
 def _edit(record: Path, **fields: object) -> None:
+    """Edit a record as one written before records were sealed (no ``sha256``): what the checks
+    of its fields and verdict must catch on their own."""
     data = json.loads(record.read_text())
+    data.pop("sha256", None)
     data.update(fields)
     record.write_text(json.dumps(data))
 
@@ -72,7 +75,7 @@ def test_a_health_record_field_of_the_wrong_type_is_refused(tree: Path, tmp_path
     one_message(_draw(out, 0, seed0), str(record), "field 'trained' is the string \"no\"",
                 "rebuild it: delete it and rerun snakemake")  # fmt: skip
     assert not out.exists()
-    good = json.loads(honest)
+    good = {k: v for k, v in json.loads(honest).items() if k != "sha256"}
     cases = {
         "seed": True,
         "format": "1",
@@ -151,8 +154,10 @@ def test_every_consulted_record_is_about_its_own_weights(tree: Path, tmp_path: P
     """Draw 1 consults trainings 0 and 1; seed0's record replaced by seed1's (its seed edited
     to 0) judged other weights, and only the chosen training's record was compared."""
     seed0, seed1 = _trainings(tree, tmp_path)
+    from cape.storage.integrity import sealed_record
+
     other = json.loads((seed1 / "health.json").read_text())
-    (seed0 / "health.json").write_text(json.dumps({**other, "seed": 0}))
+    (seed0 / "health.json").write_text(json.dumps(sealed_record({**other, "seed": 0})))
     one_message(
         _draw(tmp_path / "draw", 1, seed0, seed1),
         f"{seed0 / 'health.json'}: is about other weights than {seed0 / 'model.pt'}",
@@ -236,3 +241,71 @@ def test_a_changed_record_or_bar_re_decides_the_draws(tree: Path, tmp_path: Path
     bar = _planned(snakemake("-n", *run, "--configfile", str(stricter)))
     assert {("draw", "replicate=0, model=dpm"), ("draw", "replicate=1, model=dpm"),
             ("training_health", "model=dpm, training_seed=0")} <= bar, bar  # fmt: skip
+
+
+@pytest.mark.parametrize("edit", ["verdict", "string", "not json"])
+def test_a_record_edited_by_hand_stops_its_draw_in_one_line(
+    tree: Path, tmp_path: Path, edit: str
+) -> None:
+    """A sealed record edited in place (its checksum left as it was), or one that is no
+    record: the planner does not print a traceback (it printed an InputFunctionException with
+    7 `File` lines); it plans the draw, whose log says what is wrong and the fix."""
+    work = tmp_path / "work"
+    shutil.copytree(tree, work, symlinks=True)
+    record = work / "results" / "trainings" / "dpm" / "seed0" / "health.json"
+    text = record.read_text()
+    edited = {"verdict": text.replace('"trained": true', '"trained": false'),
+              "string": text.replace('"trained": true', '"trained": "no"'),
+              "not json": "trained: yes\n"}[edit]  # fmt: skip
+    assert edited != text
+    record.write_text(edited)
+    run = ("--cores", "2", "-d", str(work), *TARGETS)
+    dry = snakemake("-n", *run)
+    out = dry.stdout + dry.stderr
+    assert dry.returncode == 0 and 'File "' not in out and "Traceback" not in out, out[-3000:]
+    assert ("draw", "replicate=0, model=dpm") in _planned(dry)
+    failed = snakemake(*run, timeout=600)
+    assert failed.returncode != 0
+    assert 'File "' not in failed.stdout + failed.stderr
+    log = (work / "results" / "logs" / "draw" / "rep0" / "dpm.log").read_text()
+    named = "results/trainings/dpm/seed0/health.json"
+    assert named in log and "delete it and rerun snakemake" in log, log
+    assert record.read_text() == edited  # never rewritten behind the user's back
+
+
+def test_outputs_made_from_one_training_are_not_replaced_by_anothers(
+    tree: Path, tmp_path: Path
+) -> None:
+    """The workflow's draw 0 re-made by hand from another training or under another cap, a
+    training's health record written from another training, a draw's frozen Φ from another
+    draw's weights: each refused in one line, the output as it was (they were accepted)."""
+    work = tmp_path / "work"
+    shutil.copytree(tree, work, symlinks=True)
+    trainings = work / "results" / "trainings" / "dpm"
+    models = work / "results" / "models"
+    draw0 = models / "rep0" / "dpm"
+    kept = (draw0 / "meta.json").read_bytes()
+    for given, cap in (([trainings / "seed1"], "2"), ([trainings / "seed0"], "3")):
+        options = [a for f in given for a in ("--training", str(f))]
+        other = cape("draw", "--model", "dpm", "--replicate", "0", *options, "--max-trainings",
+                     cap, "--out", str(draw0))  # fmt: skip
+        one_message(other, "holds trained model dpm of replicate 0 [seeds 0", "nothing was")
+    assert (draw0 / "meta.json").read_bytes() == kept
+
+    data = work / "results" / "data" / "DYN-PP-ETHZ.npz"
+    record = trainings / "seed1" / "health.json"
+    honest = record.read_bytes()
+    check = cape("check-training", "--model", f"dpm={trainings / 'seed0'}", "--data", str(data),
+                 "--out", str(record))  # fmt: skip
+    one_message(check, f"--out {record}: holds health record dpm [", "nothing was changed")
+    assert record.read_bytes() == honest
+
+    frozen = draw0 / "frozen_phi.json"
+    made = cape("freeze", "--model", f"dpm={draw0}", "--data", str(data), "--out", str(frozen))
+    assert made.returncode == 0, made.stderr
+    mine = frozen.read_bytes()
+    other = cape("freeze", "--model", f"dpm={models / 'rep1' / 'dpm'}", "--data", str(data),
+                 "--out", str(frozen))  # fmt: skip
+    one_message(other, "holds frozen parameters dpm of replicate 0 [", "not frozen parameters "
+                "dpm of replicate 1 [")  # fmt: skip
+    assert frozen.read_bytes() == mine

@@ -299,8 +299,8 @@ def test_a_training_snakemake_did_not_record_is_rewritten_not_retrained(tmp_path
     first.send_signal(signal.SIGKILL)  # snakemake alone: its job runs on to its end
     first.wait()
     assert (folder / "model.pt").exists(), "snakemake ended before the training wrote its model"
-    written = (folder / "model.pt").read_bytes()
     time.sleep(5)  # the orphaned `cape train` exits
+    written = {n: (folder / n).read_bytes() for n in ("model.pt", "meta.json", "loss.csv")}
     plan = _snakemake("-n", "--cores", "1", "-d", str(work), target).stdout
     assert "rule train:" in plan, plan  # Snakemake never recorded it: the job is run again
     again = subprocess.run(command, cwd=REPO_ROOT, capture_output=True, text=True, timeout=600)
@@ -310,7 +310,7 @@ def test_a_training_snakemake_did_not_record_is_rewritten_not_retrained(tmp_path
     benchmark = (work / "results" / "benchmarks" / "train" / "dpm" / "seed0.tsv").read_text()
     seconds = float(benchmark.splitlines()[1].split("\t")[0])
     assert seconds < 30, benchmark  # the rewrite: imports and the write, no epoch
-    assert (folder / "model.pt").read_bytes() == written
+    assert {n: (folder / n).read_bytes() for n in written} == written  # byte-identical
 
 
 @pytest.mark.slow

@@ -52,7 +52,7 @@ def test_a_network_never_replaces_another_models(trained: dict, tmp_path: Path) 
     assert first.returncode == 0, first.stderr
     before = out.read_bytes()
     other = cape("export-network", "--model", f"dpm={trained['rep1']}", "--out", str(out))
-    one_message(other, "holds network dpm, not network dpm of replicate 1")
+    one_message(other, "holds network dpm [", "not network dpm of replicate 1 [")
     assert out.read_bytes() == before
     same = cape("export-network", "--model", f"dpm={trained['plain']}", "--out", str(out))
     assert same.returncode == 0, same.stderr
@@ -208,24 +208,24 @@ def test_a_model_folder_is_the_models_only_by_its_owner_record(tmp_path: Path) -
     """Snakemake deletes a training's model.pt, meta.json and loss.csv before it reruns it; the
     folder, with what other rules or a killed training left, stays the training's by its owner
     record. A folder of files without one is refused in one line that says what to do."""
-    from cape.cli.models import _model_output
+    from cape.cli.models import _training_output
     from cape.errors import CapeError
     from cape.storage.ownership import claimed
 
     folder = tmp_path / "seed0"
-    with claimed([_model_output(folder, "dpm", None)], "test"):
+    with claimed([_training_output(folder, "dpm")], "test"):
         folder.mkdir()
         (folder / "model.pt").write_bytes(b"x")
     (folder / "model.pt").unlink()
     (folder / "health.json").write_text("{}")
     (folder / "checkpoint-0123456789abcdef.pt").write_bytes(b"x")
-    with claimed([_model_output(folder, "dpm", None)], "test"):
+    with claimed([_training_output(folder, "dpm")], "test"):
         pass
     (tmp_path / "other").mkdir()
     (tmp_path / "other" / "health.json").write_text("{}")
     with (
         pytest.raises(CapeError, match=r"no owner record.*delete it first"),
-        claimed([_model_output(tmp_path / "other", "dpm", None)], "test"),
+        claimed([_training_output(tmp_path / "other", "dpm")], "test"),
     ):
         pass
 

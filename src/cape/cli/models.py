@@ -97,9 +97,9 @@ def cmd_train(args: argparse.Namespace) -> None:
         identity=training,
     )
     result = run.result
-    if result.resumed_from >= len(result.losses):
+    if result.rewritten:
         print(f"already trained: its outputs rewritten from {run.checkpoint} (epoch "
-              f"{result.resumed_from})")  # fmt: skip
+              f"{len(result.losses)})")  # fmt: skip
     elif result.resumed_from:
         print(f"resumed from {run.checkpoint} after epoch {result.resumed_from}")
     # the checkpoint of the last epoch stays: a rerun after a crash (Snakemake deletes the
@@ -121,18 +121,39 @@ def _training_output(out: Path, identity: str) -> Any:
     return Output(out, "trained model", identity, folder=True, files=files)
 
 
-def _model_output(out: Path, model: str, replicate: int | None) -> Any:
-    """A model folder as an output (``cape.storage.ownership``): a trained ``model`` of
-    ``replicate`` (None: a training that is no draw), as ``cape train`` and ``cape draw`` write
-    it."""
+def _draw_output(out: Path, model: str, replicate: int, draw: Any, cap: int) -> Any:
+    """A draw's folder as an output: draw ``replicate`` of ``model``, made from the trainings
+    it consulted (their seeds and the chosen one's weights) under its cap."""
     from cape.storage.ownership import Output
 
+    choice = draw.choice
+    seeds = ", ".join(str(o.seed) for o in choice.consulted)
+    chosen = choice.consulted[choice.index].weights_sha256[:16]
+    identity = (f"{_model_identity(model, replicate)} [seeds {seeds}, cap "
+                f"{cap}, weights {chosen}]")  # fmt: skip
     files = (paths.WEIGHTS, paths.META, paths.LOSSES)
-    return Output(out, "trained model", _model_identity(model, replicate), folder=True, files=files)
+    return Output(out, "trained model", identity, folder=True, files=files)
 
 
 def _model_identity(model: str, replicate: int | None) -> str:
     return model if replicate is None else f"{model} of replicate {replicate}"
+
+
+def _made_from_weights(item: str) -> str:
+    """The identity of an output made from one trained model ``NAME=DIR`` (its health record,
+    frozen Φ, exported network): the model, its draw and its weights digest."""
+    from cape.closedloop.provenance import model_replicate
+    from cape.models.trained import read_meta
+
+    name, sep, folder = item.partition("=")
+    if not sep:
+        return name  # loading the model says what --model takes
+    meta = read_meta(Path(folder))
+    try:
+        replicate = model_replicate(meta)
+    except (TypeError, ValueError):
+        replicate = None  # loading the model says what is wrong with it
+    return f"{_model_identity(name, replicate)} [{str(meta.get('weights_sha256'))[:16]}]"
 
 
 def _check_training_arguments(p: argparse.ArgumentParser) -> None:
@@ -161,7 +182,7 @@ def cmd_check_training(args: argparse.Namespace) -> None:
     from cape.storage.ownership import Output
 
     settings = _spec(args)
-    _claim(args, Output(Path(args.out), "health record", args.model.partition("=")[0],
+    _claim(args, Output(Path(args.out), "health record", _made_from_weights(args.model),
                         JSON_SUFFIXES))  # fmt: skip
     ((name, model),) = _load_models([args.model]).items()
     folder = Path(args.model.partition("=")[2])
@@ -220,7 +241,7 @@ def cmd_draw(args: argparse.Namespace) -> None:
     draw = make_draw(
         args.model, args.replicate, args.max_trainings, [Path(t) for t in args.training], settings
     )
-    _claim(args, _model_output(out, args.model, args.replicate))
+    _claim(args, _draw_output(out, args.model, args.replicate, draw, args.max_trainings))
     write_files({out / name: content for name, content in draw.files.items()})
     choice = draw.choice
     said = "trained" if choice.trained else "failed (the cap was reached)"
@@ -254,7 +275,7 @@ def cmd_freeze(args: argparse.Namespace) -> None:
     from cape.storage.ownership import Output
 
     split = _spec(args).split
-    _claim(args, Output(Path(args.out), "frozen parameters", args.model.partition("=")[0],
+    _claim(args, Output(Path(args.out), "frozen parameters", _made_from_weights(args.model),
                         JSON_SUFFIXES))  # fmt: skip
     ((name, model),) = _load_models([args.model]).items()
     data = TrainingData.from_dataset(
@@ -291,14 +312,10 @@ def cmd_export_network(args: argparse.Namespace) -> None:
         raise CapeError(
             f"--model {args.model}: expected NAME=FOLDER, e.g. epm={paths.model_dir('epm')}"
         )
-    from cape.closedloop.provenance import model_replicate
-    from cape.models.trained import read_meta
     from cape.storage.ownership import Output
 
-    meta = read_meta(folder)
     target = Path(args.out) if args.out else Path(folder) / paths.NETWORK
-    identity = _model_identity(name, model_replicate(meta))
-    _claim(args, Output(target, "network", identity, (".npz",)))
+    _claim(args, Output(target, "network", _made_from_weights(args.model), (".npz",)))
     out = export_network(folder, target, expected_name=name)
     print(f"wrote {out}: the {name} network for the closed loop")
     compile_settings = _spec(args).rollout_compile
@@ -326,6 +343,7 @@ def _openloop_arguments(p: argparse.ArgumentParser) -> None:
 @command("openloop", "open-loop error table of trained models (SPEC §4.4)", _openloop_arguments)
 def cmd_openloop(args: argparse.Namespace) -> None:
     import numpy as np
+    import torch
 
     from cape.models.evaluate import rear_slip
     from cape.models.report import openloop_table
@@ -334,6 +352,7 @@ def cmd_openloop(args: argparse.Namespace) -> None:
     settings = _spec(args)
     made = _made_from(args.model, [args.train_data, args.test_data], settings)
     _claim(args, *_files(args.out, "open-loop error table", TABLE_SUFFIXES, identity=made))
+    torch.set_num_threads(1)  # the same numbers on any machine, by hand as in the workflow
     horizon = settings.multistep_horizon
     train, test = _read_dataset(args.train_data), _read_dataset(args.test_data)
     table = openloop_table(_load_models(args.model), train, test, settings.split, horizon)

@@ -39,14 +39,17 @@ class Outcome:
     weights_sha256: str = ""
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        """The record, sealed (``sha256`` over the rest: a hand edit is refused, not read)."""
+        from cape.storage.integrity import sealed_record
+
+        return sealed_record({
             "format": HEALTH_FORMAT,
             "seed": self.seed,
             "trained": self.trained,
             "reasons": list(self.reasons),
             "val_rmse": dict(self.val_rmse),
             "weights_sha256": self.weights_sha256,
-        }
+        })  # fmt: skip
 
     @classmethod
     def from_dict(cls, record: Mapping[str, Any], where: str) -> Outcome:
@@ -70,6 +73,10 @@ class Outcome:
         unknown = sorted(str(k) for k in record if k not in _FIELDS)
         if unknown:
             raise refuse(f"field {unknown[0]!r} is not one of a health record's")
+        if "sha256" in record:  # records before issue 53 carry none: read as they are
+            from cape.storage.integrity import check_record
+
+            check_record(record, where, "rebuild it: delete it and rerun snakemake")
         field_of("format", f"{HEALTH_FORMAT}", lambda v: _is_int(v) and v == HEALTH_FORMAT)
         seed = field_of("seed", "an integer", _is_int)
         trained = field_of("trained", "true or false", lambda v: isinstance(v, bool))
@@ -98,7 +105,7 @@ class Outcome:
         return cls(seed, trained, tuple(reasons), rmse, digest)
 
 
-_FIELDS = ("format", "seed", "trained", "reasons", "val_rmse", "weights_sha256")
+_FIELDS = ("format", "seed", "trained", "reasons", "val_rmse", "weights_sha256", "sha256")
 _SHA256 = re.compile(r"[0-9a-f]{64}")
 
 

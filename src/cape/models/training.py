@@ -64,6 +64,8 @@ class TrainingResult:
     wall_seconds: float = 0.0
     resumed_from: int = 0
     """The epoch a checkpoint had completed when this training resumed from it (0: none)."""
+    rewritten: bool = False
+    """Read back whole from the checkpoint a finished training keeps: no epoch was run."""
 
 
 CHECKPOINT_KEYS = ("model", "optimiser", "generator", "rng", "best_state", "losses",
@@ -146,8 +148,8 @@ def train_model(
     compiled by ``torch.compile`` (``training_loss``: the same recipe; losses follow eager
     ones to rounding). Every step sees a full batch (``PaddedBatches``: the last one padded
     with rows of mask 0), so the compiled graph has one shape.
-    ``checkpoint``: resume from it if it exists, write it every ``every_seconds`` and after
-    the last epoch (a checkpoint of the last epoch resumes to the finished result at once)."""
+    ``checkpoint``: resume from it if it exists, write it every ``every_seconds`` and once
+    finished (kept: read back, a finished training's result is the same, record included)."""
     torch.set_num_threads(threads)
     torch.use_deterministic_algorithms(True)
     model = build_model(name, spec, ts, seed)
@@ -170,6 +172,7 @@ def train_model(
     start = time.perf_counter()
     earlier = 0.0  # wall seconds spent before a resume
     state = checkpoint.load() if checkpoint is not None else None
+    finished: tuple[float, int] | None = None  # the record of a training already finished
     if state is not None:
         model.load_state_dict(state["model"])
         optimiser.load_state_dict(state["optimiser"])
@@ -179,6 +182,9 @@ def train_model(
         result.losses = list(state["losses"])
         result.best_epoch, result.best_val_loss = state["best_epoch"], state["best_val_loss"]
         result.resumed_from, earlier = len(result.losses), float(state["wall_seconds"])
+        done = state.get("finished")
+        if isinstance(done, dict) and result.resumed_from >= n_epochs:
+            finished = (float(done["wall_seconds"]), int(done["resumed_from"]))
     saved = time.perf_counter()
     bar = tqdm(
         range(result.resumed_from + 1, n_epochs + 1),
@@ -216,10 +222,7 @@ def train_model(
             refresh=False,  # the bar's own interval decides when to redraw
         )
         now = time.perf_counter()
-        # every `every_seconds`, and always after the last epoch: a finished training's
-        # checkpoint is kept, so a rerun after a crash rewrites its outputs in seconds
-        due = epoch == n_epochs or now - saved >= (checkpoint.every_seconds if checkpoint else 0)
-        if checkpoint is not None and due:
+        if checkpoint is not None and epoch < n_epochs and now - saved >= checkpoint.every_seconds:
             checkpoint.save({
                 "model": model.state_dict(),
                 "optimiser": optimiser.state_dict(),
@@ -235,7 +238,24 @@ def train_model(
     if best_state is not None:
         model.load_state_dict(best_state)
     model.eval()
+    if finished is not None:  # a finished training read back: its own record, unchanged
+        result.wall_seconds, result.resumed_from = finished
+        result.rewritten = True
+        return result
     result.wall_seconds = earlier + time.perf_counter() - start
+    if checkpoint is not None:  # kept: a rerun after a crash rewrites the outputs from it
+        checkpoint.save({
+            "model": model.state_dict(),
+            "optimiser": optimiser.state_dict(),
+            "generator": generator.get_state(),
+            "rng": torch.get_rng_state(),
+            "best_state": best_state,
+            "losses": result.losses,
+            "best_epoch": result.best_epoch,
+            "best_val_loss": result.best_val_loss,
+            "wall_seconds": result.wall_seconds,
+            "finished": {"wall_seconds": result.wall_seconds, "resumed_from": result.resumed_from},
+        })  # fmt: skip
     return result
 
 

@@ -211,19 +211,42 @@ class StudyWorkflow:
 
         return choose_training(int(wildcards.replicate), self.max_trainings, outcome)
 
+    def _choice_or_none(self, wildcards: Any) -> Choice | None:
+        """``draw_choice``, or None when a record it reads is no health record: the draw job
+        then runs and `cape draw` says what is wrong in one line (its log), not the planner
+        in a traceback."""
+        try:
+            return self.draw_choice(wildcards)
+        except CapeError:
+            return None
+
     def draw_max_trainings(self, wildcards: Any) -> int:
         """The cap a draw is made under (cape.models.draws.deciding_cap)."""
-        return deciding_cap(self.draw_choice(wildcards), self.max_trainings)
+        choice = self._choice_or_none(wildcards)
+        return self.max_trainings if choice is None else deciding_cap(choice, self.max_trainings)
 
     def draw_records(self, wildcards: Any) -> str:
         """The content of the health records draw r of a model is chosen by, as a digest (a
         param of the draw rule: a record changed in place re-decides the draw, whatever its
-        file's time)."""
+        file's time); with a record that is none, the records up to it."""
         model = wildcards.model
         digest = hashlib.sha256()
-        for k in range(len(self.draw_choice(wildcards).consulted)):
-            with open(self.health(model, self.training_seed(k)), "rb") as record:
-                digest.update(hashlib.sha256(record.read()).digest())
+        choice = self._choice_or_none(wildcards)
+        for k in range(len(choice.consulted) if choice is not None else self.max_trainings):
+            try:
+                path = self.health(model, self.training_seed(k))
+            except Exception:  # Snakemake's: a record still to be made
+                break
+            if not os.path.exists(path):
+                break
+            with open(path, "rb") as record:
+                content = record.read()
+            digest.update(hashlib.sha256(content).digest())
+            if choice is None:
+                try:
+                    read_outcome(path)
+                except CapeError:
+                    break  # the record `cape draw` will refuse
         return digest.hexdigest()[:16]
 
     def draw_inputs(self, wildcards: Any) -> dict[str, Any]:
@@ -254,7 +277,10 @@ class StudyWorkflow:
                 missing.append(str(pending.targetfile))
                 raise _MissingRecordError from None
             read[k] = record
-            return read_outcome(record)
+            try:
+                return read_outcome(record)
+            except CapeError:  # `cape draw` refuses it in one line: the job runs to say so
+                raise _MissingRecordError from None
 
         with suppress(_MissingRecordError):  # planned again once that record is made
             choose_training(int(wildcards.replicate), self.max_trainings, outcome)
