@@ -143,6 +143,11 @@ def test_a_health_record_that_is_not_one_is_refused_naming_the_file(tmp_path: Pa
     with pytest.raises(CapeError, match=r"health\.json: unreadable"):
         read_outcome(path)
     path.write_text(json.dumps({"format": 1, "seed": 3}))
+    with pytest.raises(CapeError, match="carries no checksum"):
+        read_outcome(path)
+    from cape.storage.integrity import sealed_record
+
+    path.write_text(json.dumps(sealed_record({"format": 1, "seed": 3})))
     with pytest.raises(CapeError, match="not a training's health record"):
         read_outcome(path)
     record = Outcome(3, False, ("stalled",), {"vx": 1e-3, "vy": 2e-3, "omega": 3e-3}, "ab" * 32)

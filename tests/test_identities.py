@@ -182,3 +182,29 @@ def test_a_table_of_runs_is_not_replaced_by_one_of_other_runs(
     assert (tmp_path / "runs.parquet").read_bytes() == kept
     again = cape("aggregate", str(run["out"] / "metrics.json"), *tables)
     assert again.returncode == 0, again.stderr
+
+
+def test_an_output_recorded_before_identities_is_refused_saying_so(tmp_path: Path) -> None:
+    """An owner record from before records had a format names a table with no identity: what
+    it holds cannot be told from it, and the refusal says so (it read "holds table of runs,
+    not table of runs of 61 runs"); deleted, the output is written."""
+    from cape.errors import CapeError
+    from cape.storage.ownership import Output, claimed
+
+    out = tmp_path / "runs.parquet"
+    out.write_bytes(b"old table")
+    (tmp_path / ".runs.parquet.owner").write_text(
+        json.dumps({"kind": "table of runs", "identity": "", "written_by": "cape aggregate"})
+    )
+    new = Output(out, "table of runs", "of 61 runs [74e2]")
+    with (
+        pytest.raises(CapeError, match="an earlier CAPE recorded without what made it"),
+        claimed([new], "test"),
+    ):
+        pass
+    assert out.read_bytes() == b"old table"
+    out.unlink()
+    with claimed([new], "test"):
+        out.write_bytes(b"new table")
+    record = json.loads((tmp_path / ".runs.parquet.owner").read_text())
+    assert record["format"] == "cape-owner/1" and record["identity"] == "of 61 runs [74e2]"

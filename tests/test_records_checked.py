@@ -55,12 +55,13 @@ def _draw(out: Path, replicate: int, *folders: Path, config: Path | None = None)
 
 
 def _edit(record: Path, **fields: object) -> None:
-    """Edit a record as one written before records were sealed (no ``sha256``): what the checks
-    of its fields and verdict must catch on their own."""
+    """Edit a record and seal it again (a deliberate forgery the checksum cannot tell): what
+    the checks of its fields and verdict must catch on their own."""
+    from cape.storage.integrity import sealed_record
+
     data = json.loads(record.read_text())
-    data.pop("sha256", None)
     data.update(fields)
-    record.write_text(json.dumps(data))
+    record.write_text(json.dumps(sealed_record(data)))
 
 
 def test_a_health_record_field_of_the_wrong_type_is_refused(tree: Path, tmp_path: Path) -> None:
@@ -75,6 +76,8 @@ def test_a_health_record_field_of_the_wrong_type_is_refused(tree: Path, tmp_path
     one_message(_draw(out, 0, seed0), str(record), "field 'trained' is the string \"no\"",
                 "rebuild it: delete it and rerun snakemake")  # fmt: skip
     assert not out.exists()
+    from cape.storage.integrity import sealed_record
+
     good = {k: v for k, v in json.loads(honest).items() if k != "sha256"}
     cases = {
         "seed": True,
@@ -84,7 +87,7 @@ def test_a_health_record_field_of_the_wrong_type_is_refused(tree: Path, tmp_path
         "weights_sha256": "ab",
     }
     for name, value in cases.items():
-        record.write_text(json.dumps({**good, name: value}))
+        record.write_text(json.dumps(sealed_record({**good, name: value})))
         with pytest.raises(CapeError, match=rf"field '{name}' is .*rebuild it") as refused:
             read_outcome(record)
         assert str(record) in str(refused.value)
@@ -94,9 +97,12 @@ def test_a_health_record_field_of_the_wrong_type_is_refused(tree: Path, tmp_path
         {k: v for k, v in good.items() if k != "seed"},
         {**good, "verdict": "ok"},
     ):
-        record.write_text(json.dumps(bad))
+        record.write_text(json.dumps(sealed_record(bad)))
         with pytest.raises(CapeError, match="not a training's health record"):
             read_outcome(record)
+    record.write_text(json.dumps(good))  # edited, its checksum dropped: a record no more
+    with pytest.raises(CapeError, match=r"carries no checksum.*rebuild it"):
+        read_outcome(record)
     record.write_text(honest.replace('"trained": true', '"trained": true, "trained": false'))
     with pytest.raises(CapeError, match="field 'trained' is given twice"):
         read_outcome(record)

@@ -73,10 +73,9 @@ class Outcome:
         unknown = sorted(str(k) for k in record if k not in _FIELDS)
         if unknown:
             raise refuse(f"field {unknown[0]!r} is not one of a health record's")
-        if "sha256" in record:  # records before issue 53 carry none: read as they are
-            from cape.storage.integrity import check_record
+        from cape.storage.integrity import check_record
 
-            check_record(record, where, "rebuild it: delete it and rerun snakemake")
+        check_record(record, where, "rebuild it: delete it and rerun snakemake")
         field_of("format", f"{HEALTH_FORMAT}", lambda v: _is_int(v) and v == HEALTH_FORMAT)
         seed = field_of("seed", "an integer", _is_int)
         trained = field_of("trained", "true or false", lambda v: isinstance(v, bool))

@@ -115,9 +115,10 @@ def _protected(path: Path) -> str | None:
 OWNER_FORMAT = "cape-owner/1"
 
 
-def _read_owner(record: Path) -> tuple[str, str] | None:
-    """The kind and identity an owner record names; None when there is none (no file, or an
-    empty one: a claim interrupted before it wrote); ``NotOursError`` when the file is not one."""
+def _read_owner(record: Path) -> tuple[str, str, bool] | None:
+    """The kind and identity an owner record names, and whether it is from before records had
+    a format (their identities held less); None when there is none (no file, or an empty one:
+    a claim interrupted before it wrote); ``NotOursError`` when the file is not one."""
     try:
         text = record.read_text()
     except FileNotFoundError:
@@ -135,7 +136,7 @@ def _read_owner(record: Path) -> tuple[str, str] | None:
         raise NotOursError(record)
     if body.get("format", OWNER_FORMAT) != OWNER_FORMAT:  # records before the format: ours
         raise NotOursError(record)
-    return body["kind"], body["identity"]
+    return body["kind"], body["identity"], "format" not in body
 
 
 class NotOursError(Exception):
@@ -182,11 +183,15 @@ def _check_owner(out: Output, record: Path) -> None:
     if not path.exists() or (out.folder and _empty(path)):
         return
     if owner is not None:
-        if owner == (out.kind, out.identity):
+        kind, identity, older = owner
+        if (kind, identity) == (out.kind, out.identity):
             return
-        if out.files and owner[0] == out.kind and not any((path / f).exists() for f in out.files):
+        if out.files and kind == out.kind and not any((path / f).exists() for f in out.files):
             return  # its own files deleted: what is left is no output of that identity
-        kind, identity = owner
+        if older and kind == out.kind and out.identity.startswith(identity):
+            raise _refuse(out, f"holds a {kind} an earlier CAPE recorded without what made it, "
+                               f"so whether it is {out.described()} cannot be told; delete it to "
+                               "write it again, or give another path")  # fmt: skip
         raise _refuse(out, f"holds {f'{kind} {identity}'.strip()}, not {out.described()}, "
                            "so it is not this command's to replace; give another path")  # fmt: skip
     if out.recognise is not None and out.recognise(path) == out.identity:
