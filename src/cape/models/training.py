@@ -197,6 +197,21 @@ def train_model(
         file=sys.stderr,
     )
     batches = PaddedBatches(batch)
+
+    def resumable(wall_seconds: float) -> dict[str, Any]:
+        """What the next epoch depends on (``CHECKPOINT_KEYS``), as a checkpoint holds it."""
+        return {
+            "model": model.state_dict(),
+            "optimiser": optimiser.state_dict(),
+            "generator": generator.get_state(),
+            "rng": torch.get_rng_state(),
+            "best_state": best_state,
+            "losses": result.losses,
+            "best_epoch": result.best_epoch,
+            "best_val_loss": result.best_val_loss,
+            "wall_seconds": wall_seconds,
+        }
+
     for epoch in bar:
         model.train()
         order = torch.randperm(len(x_train), generator=generator)
@@ -223,17 +238,7 @@ def train_model(
         )
         now = time.perf_counter()
         if checkpoint is not None and epoch < n_epochs and now - saved >= checkpoint.every_seconds:
-            checkpoint.save({
-                "model": model.state_dict(),
-                "optimiser": optimiser.state_dict(),
-                "generator": generator.get_state(),
-                "rng": torch.get_rng_state(),
-                "best_state": best_state,
-                "losses": result.losses,
-                "best_epoch": result.best_epoch,
-                "best_val_loss": result.best_val_loss,
-                "wall_seconds": earlier + now - start,
-            })  # fmt: skip
+            checkpoint.save(resumable(earlier + now - start))
             saved = time.perf_counter()
     if best_state is not None:
         model.load_state_dict(best_state)
@@ -244,18 +249,8 @@ def train_model(
         return result
     result.wall_seconds = earlier + time.perf_counter() - start
     if checkpoint is not None:  # kept: a rerun after a crash rewrites the outputs from it
-        checkpoint.save({
-            "model": model.state_dict(),
-            "optimiser": optimiser.state_dict(),
-            "generator": generator.get_state(),
-            "rng": torch.get_rng_state(),
-            "best_state": best_state,
-            "losses": result.losses,
-            "best_epoch": result.best_epoch,
-            "best_val_loss": result.best_val_loss,
-            "wall_seconds": result.wall_seconds,
-            "finished": {"wall_seconds": result.wall_seconds, "resumed_from": result.resumed_from},
-        })  # fmt: skip
+        finished_record = {"wall_seconds": result.wall_seconds, "resumed_from": result.resumed_from}
+        checkpoint.save({**resumable(result.wall_seconds), "finished": finished_record})
     return result
 
 
