@@ -77,7 +77,7 @@ rule draw:
         # the bar each consulted record's verdict is checked against (a changed bar re-decides
         # the draws), and the records' content (a record changed in place does)
         spec=lambda wildcards: job_spec("draw", specs.health(config, wildcards.model)),
-        records=W.draw_records,
+        records=lambda wildcards, input: W.draw_records(getattr(input, "health", [])),
     conda:
         CAPE_ENV
     log:

@@ -18,7 +18,7 @@ from typing import NoReturn
 
 from cape.cli import data, models, question, runs, study  # noqa: F401  (they register their commands)
 from cape.cli.common import COMMANDS, STARTED
-from cape.errors import CapeError, one_line
+from cape.errors import CapeError, limit_text, one_line
 from cape.numerics import interrupt
 
 __all__ = ["STARTED", "build_parser", "main"]
@@ -80,13 +80,6 @@ def describe_os_error(exc: OSError) -> str:
     return f"{where}{what} ({fix}; no file was left half-written)"
 
 
-def _limit(resource_id: int) -> str:
-    import resource
-
-    soft = resource.getrlimit(resource_id)[0]
-    return "unlimited" if soft == resource.RLIM_INFINITY else str(soft)
-
-
 def shortage(exc: BaseException) -> str | None:
     """One line for a machine that ran short (no thread, process or memory to be had), naming
     the resource and this process's limit; None for any other error."""
@@ -96,13 +89,13 @@ def shortage(exc: BaseException) -> str | None:
     threads = isinstance(exc, RuntimeError) and "can't start new thread" in text
     if threads or (isinstance(exc, OSError) and exc.errno == errno.EAGAIN):
         return (f"the machine would not start another thread or process (ulimit -u: "
-                f"{_limit(resource.RLIMIT_NPROC)} for this user); end other programs or ask "
+                f"{limit_text(resource.RLIMIT_NPROC)} for this user); end other programs or ask "
                 "for a higher limit, then run it again")  # fmt: skip
     memory = isinstance(exc, MemoryError) or (
         isinstance(exc, OSError) and exc.errno == errno.ENOMEM
     )
     if memory or (isinstance(exc, RuntimeError) and "can't allocate memory" in text):
-        return (f"out of memory (ulimit -v: {_limit(resource.RLIMIT_AS)} kB; a job's mem_mb "
+        return (f"out of memory (ulimit -v: {limit_text(resource.RLIMIT_AS)} kB; a job's mem_mb "
                 "or the machine's memory); free memory or give the job more, then run it "
                 "again")  # fmt: skip
     return None
@@ -140,12 +133,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         args.func(args)
         succeeded = True
-    except (CapeError, OSError, KeyboardInterrupt, Interrupted) as exc:
-        status, message = told(exc)
-        print(f"cape {args.command}: {message}", file=sys.stderr)
-        return status
-    except (MemoryError, RuntimeError) as exc:
-        if shortage(exc) is None:
+    except (CapeError, OSError, KeyboardInterrupt, Interrupted, MemoryError, RuntimeError) as exc:
+        if isinstance(exc, (MemoryError, RuntimeError)) and shortage(exc) is None:
             raise  # a bug: its traceback
         status, message = told(exc)
         print(f"cape {args.command}: {message}", file=sys.stderr)

@@ -293,31 +293,43 @@ def _files(
     return [Output(Path(p), kind, identity, suffixes=suffixes, option=option) for p in paths]
 
 
+def model_made(item: str) -> tuple[str, int | None, str] | None:
+    """A trained model ``NAME=DIR`` as an identity reads it: its name, draw (None: no draw,
+    or a value loading the model will refuse) and weights digest; None without ``=``."""
+    from cape.closedloop.provenance import model_replicate
+    from cape.models.trained import read_meta
+
+    name, sep, folder = item.partition("=")
+    if not sep:
+        return None
+    meta = read_meta(Path(folder))
+    try:
+        replicate = model_replicate(meta)
+    except (TypeError, ValueError):
+        replicate = None
+    return name, replicate, str(meta.get("weights_sha256"))
+
+
 def _made_from(models: list[str], data: list[str], settings: Any) -> str:
     """The identity of an output computed from trained models (``NAME=DIR``), data files and
     settings (a typed specification): the models and their draws by name, and one digest of
     their weights, the data's bytes and the settings."""
     import hashlib
 
-    from cape.closedloop.provenance import model_replicate
-    from cape.models.trained import read_meta
     from cape.specs import digest
+    from cape.storage.integrity import file_digest
 
     named, parts = [], [digest(settings)]
     for item in models:
-        name, sep, folder = item.partition("=")
-        if not sep:
+        made = model_made(item)
+        if made is None:
             continue  # _load_models says what --model takes
-        meta = read_meta(Path(folder))
-        try:
-            replicate = model_replicate(meta)
-        except (TypeError, ValueError):
-            replicate = None  # loading the model says what is wrong with it
+        name, replicate, weights = made
         named.append(name if replicate is None else f"{name} draw {replicate}")
-        parts.append(f"{name}:{meta.get('weights_sha256')}")
+        parts.append(f"{name}:{weights}")
     for path in data:
         try:
-            parts.append(hashlib.sha256(Path(path).read_bytes()).hexdigest())
+            parts.append(file_digest(path))
         except OSError:
             parts.append(f"unreadable:{path}")  # its reader says what is wrong, in one line
     made = hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]

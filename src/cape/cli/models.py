@@ -27,6 +27,7 @@ from cape.cli.common import (
     _with_provenance,
     bounded,
     command,
+    model_made,
 )
 from cape.errors import CapeError
 from cape.layout import paths
@@ -78,9 +79,15 @@ def cmd_train(args: argparse.Namespace) -> None:
     pin_inductor(spec.kernels)
     from cape.models.checkpoint import save_model
     from cape.models.training_run import planned_identity, run_training
+    from cape.storage.integrity import file_digest
 
     out = Path(args.out)  # --epochs, --threads, ... were checked (common.check_bounds)
-    training = planned_identity(spec, Path(args.data), args.seed, args.epochs, args.threads)
+    try:
+        data_sha256 = file_digest(args.data)
+    except OSError:  # reading it below says what is wrong, after the claim
+        data_sha256 = None
+    training = planned_identity(spec, data_sha256 or "unreadable", args.seed, args.epochs,
+                                args.threads)  # fmt: skip
     as_draw = "" if args.replicate is None else f" as draw {args.replicate}"
     _claim(args, _training_output(out, training + as_draw))  # before reading, before training
     dataset = _read_dataset(args.data)
@@ -94,7 +101,7 @@ def cmd_train(args: argparse.Namespace) -> None:
         threads=args.threads,
         replicate=args.replicate,
         checkpoint_every=args.checkpoint_every,
-        identity=training,
+        data_sha256=data_sha256,
     )
     result = run.result
     if result.rewritten:
@@ -142,18 +149,11 @@ def _model_identity(model: str, replicate: int | None) -> str:
 def _made_from_weights(item: str) -> str:
     """The identity of an output made from one trained model ``NAME=DIR`` (its health record,
     frozen Φ, exported network): the model, its draw and its weights digest."""
-    from cape.closedloop.provenance import model_replicate
-    from cape.models.trained import read_meta
-
-    name, sep, folder = item.partition("=")
-    if not sep:
-        return name  # loading the model says what --model takes
-    meta = read_meta(Path(folder))
-    try:
-        replicate = model_replicate(meta)
-    except (TypeError, ValueError):
-        replicate = None  # loading the model says what is wrong with it
-    return f"{_model_identity(name, replicate)} [{str(meta.get('weights_sha256'))[:16]}]"
+    made = model_made(item)
+    if made is None:
+        return item.partition("=")[0]  # loading the model says what --model takes
+    name, replicate, weights = made
+    return f"{_model_identity(name, replicate)} [{weights[:16]}]"
 
 
 def _check_training_arguments(p: argparse.ArgumentParser) -> None:

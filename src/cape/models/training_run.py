@@ -17,7 +17,6 @@ from typing import Any
 import torch
 
 from cape.config import PRESENTATION_KEYS
-from cape.errors import CapeError
 from cape.models.base import LearnedModel
 from cape.models.kernels import in_effect
 from cape.models.trained import FORMAT_VERSION
@@ -57,12 +56,12 @@ def run_training(
     replicate: int | None = None,
     checkpoint_every: float | None = None,
     announce: Any = print,
-    identity: str | None = None,
+    data_sha256: str | None = None,
 ) -> TrainingRun:
     """Train ``spec``'s model on ``dataset`` (read from ``data_path``), checkpointing into
     ``out``; the options override the spec's seed, epoch count, threads and checkpoint
-    interval. ``announce`` receives one line before training; ``identity``, when given, is
-    the one claimed for ``out`` (``planned_identity``), checked against what is trained."""
+    interval. ``announce`` receives one line before training; ``data_sha256``, the data file's
+    digest when the caller has it (``planned_identity`` took it), else it is computed."""
     name, entry = spec.model, dict(spec.entry)
     seed = int(seed if seed is not None else spec.seed)
     split = spec.split
@@ -70,12 +69,11 @@ def run_training(
         dataset, int(entry["history"]), float(split["train_fraction"]), int(split["seed"])
     )
     threads = int(threads or spec.threads)
-    data_sha256 = hashlib.sha256(data_path.read_bytes()).hexdigest()
+    if data_sha256 is None:
+        data_sha256 = hashlib.sha256(data_path.read_bytes()).hexdigest()
     compiled = bool((spec.compile or {}).get("enabled", False))
     kernels = in_effect(spec.kernels)
     fingerprint = _fingerprint(spec, seed, epochs, threads, data_sha256)
-    if identity is not None and training_identity(spec.model, seed, fingerprint) != identity:
-        raise CapeError(f"{data_path}: changed while the training started; train it again")
     every = float(spec.checkpoint_every if checkpoint_every is None else checkpoint_every)
     checkpoint = Checkpointing(out / f"checkpoint-{fingerprint[:16]}.pt", fingerprint, every)
     announce(
@@ -130,19 +128,15 @@ def training_identity(model: str, seed: int, fingerprint: str) -> str:
 
 def planned_identity(
     spec: TrainingSpec,
-    data_path: Path,
+    data_sha256: str,
     seed: int | None = None,
     epochs: int | None = None,
     threads: int | None = None,
 ) -> str:
-    """The identity of the training ``run_training`` would do with these arguments (with an
-    unreadable data file: an identity no training has; reading it says what is wrong)."""
+    """The identity of the training ``run_training`` would do with these arguments, on the
+    data file of digest ``data_sha256``."""
     seed = int(seed if seed is not None else spec.seed)
     threads = int(threads or spec.threads)
-    try:
-        data_sha256 = hashlib.sha256(data_path.read_bytes()).hexdigest()
-    except OSError:
-        data_sha256 = "unreadable"
     fingerprint = _fingerprint(spec, seed, epochs, threads, data_sha256)
     return training_identity(spec.model, seed, fingerprint)
 

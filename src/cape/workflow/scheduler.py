@@ -23,8 +23,9 @@ def _short_of_threads() -> None:
     if not _SAID:
         import resource
 
-        soft = resource.getrlimit(resource.RLIMIT_NPROC)[0]
-        limit = "unlimited" if soft == resource.RLIM_INFINITY else soft
+        from cape.errors import limit_text
+
+        limit = limit_text(resource.RLIMIT_NPROC)
         print(f"CAPE: the machine refused snakemake a thread (ulimit -u: {limit}); it goes on "
               "without its wake-up timer", file=sys.stderr)  # fmt: skip
         _SAID = True

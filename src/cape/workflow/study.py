@@ -225,28 +225,16 @@ class StudyWorkflow:
         choice = self._choice_or_none(wildcards)
         return self.max_trainings if choice is None else deciding_cap(choice, self.max_trainings)
 
-    def draw_records(self, wildcards: Any) -> str:
-        """The content of the health records draw r of a model is chosen by, as a digest (a
-        param of the draw rule: a record changed in place re-decides the draw, whatever its
-        file's time); with a record that is none, the records up to it."""
-        model = wildcards.model
+    @staticmethod
+    def draw_records(health: Iterable[str]) -> str:
+        """The content of the health records a draw reads (its ``health`` inputs that exist),
+        as a digest: a param of the draw rule, so a record changed in place re-decides the
+        draw, whatever its file's time."""
         digest = hashlib.sha256()
-        choice = self._choice_or_none(wildcards)
-        for k in range(len(choice.consulted) if choice is not None else self.max_trainings):
-            try:
-                path = self.health(model, self.training_seed(k))
-            except Exception:  # Snakemake's: a record still to be made
-                break
-            if not os.path.exists(path):
-                break
-            with open(path, "rb") as record:
-                content = record.read()
-            digest.update(hashlib.sha256(content).digest())
-            if choice is None:
-                try:
-                    read_outcome(path)
-                except CapeError:
-                    break  # the record `cape draw` will refuse
+        for path in health:
+            if os.path.exists(path):
+                with open(path, "rb") as record:
+                    digest.update(hashlib.sha256(record.read()).digest())
         return digest.hexdigest()[:16]
 
     def draw_inputs(self, wildcards: Any) -> dict[str, Any]:
