@@ -5,8 +5,8 @@ draws on N nodes of C cores, as the SLURM profile submits the jobs (docs/cluster
         [--queue-wait 0] [--run-overhead S] [--group-overhead S] [--configfile ...]
 
 Run it from a replicated study's folder (`snakemake --cores 2 all replicates`), with its config.
-What it reads, per measured draw (0, 1, …; draw 0 also computes, once, the runs no draw's
-network enters, such as the ground-truth car with its true model):
+What it reads, per measured draw (0, 1, …; draw 0 also computes the runs of the studies only it
+has; since SPEC §10 revision 7 every draw runs its own seeds, its runs without a network too):
   - each model's trainings for the draw, failed ones included (``draw_cost.draw_trainings``:
     the draws that reached training.max_trainings share the trainings after the last that
     passed), CPU seconds from their benchmark files; and from them each model's measured

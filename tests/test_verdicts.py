@@ -307,13 +307,16 @@ def test_the_papers_study_runs_for_every_replicate_and_the_others_for_replicate_
     learned = [r for r in runs if r.study == "learned"]
     assert sorted({r.replicate for r in learned}) == [0, 1, 2] and len(learned) == 6
     computed = canonical(runs)
-    # the truth plant with the true model uses no trained network: computed once, replicate 0's
-    true = RunId("truth", "truth", "truth", "nmpc", "0", 1, replicate=1)
-    assert computed[true] == RunId("truth", "truth", "truth", "nmpc", "0", 1, replicate=0)
-    learned_internal = RunId("truth", "truth", "epm", "nmpc", "0", 1, replicate=1)
+    # each draw has seeds of its own (SPEC §10, revision 7): replicate 1's are 1000 and 1001,
+    # so the truth plant with the true model (no trained network) is run for each draw, on its
+    # own seeds, in its own folder
+    assert {r.seed for r in runs if r.replicate == 1} == {1000, 1001}
+    true = RunId("truth", "truth", "truth", "nmpc", "0", 1001, replicate=1)
+    assert computed[true] == true
+    learned_internal = RunId("truth", "truth", "epm", "nmpc", "0", 1001, replicate=1)
     assert computed[learned_internal] == learned_internal
     folder = learned_internal.folder("results/runs")
-    assert str(folder) == "results/runs/truth/rep1/truth/epm/nmpc/eta0/seed1"
+    assert str(folder) == "results/runs/truth/rep1/truth/epm/nmpc/eta0/seed1001"
     assert RunId.parse(folder / "metrics.json") == learned_internal
 
 

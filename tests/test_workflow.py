@@ -320,17 +320,20 @@ def test_the_smoke_study_builds_every_table_figure_and_notebook(smoke_study: Pat
     assert len(runs) == expected == 61 and runs["seed"].eq(0).all()
     assert runs["replicate"].eq(0).all()  # the default target's study: replicate 0
     # the replicates' scope adds, for replicate 1, the paper's study (3 plants × 5 × 2 η) and the
-    # truth study (PID + 2 NMPCs × 2 internal models) × 2 η, of which only EPM inside the NMPCs
-    # (2 × 2 runs) is computed again: the runs without a learned model are read for both draws
+    # truth study (PID + 2 NMPCs × 2 internal models) × 2 η, all computed on replicate 1's own
+    # seed (1000, SPEC §10 revision 7), the runs without a learned model too
     every = pd.read_parquet(work / "results/replicates/study/runs.parquet")
     assert len(every) == expected + 30 + 10
     learned = every.query("study == 'learned'")
     assert learned.groupby("replicate").size().to_dict() == {0: 30, 1: 30}
     assert every.query("study == 'truth'").groupby("replicate").size().to_dict() == {0: 10, 1: 10}
     assert every.query("study not in ('learned', 'truth')")["replicate"].eq(0).all()
-    # the ablation's diagonal (internal = plant: 3 runs) is the learned study's, computed once
+    assert set(every.query("replicate == 1")["seed"]) == {1000}
+    # the ablation's diagonal (internal = plant: 3 runs) is the learned study's, computed once;
+    # replicate 1 computes all its 30 + 10 runs (before revision 7, 30 + 4: its truth runs with
+    # no learned model were draw 0's, on draw 0's seed)
     computed = len(list((work / "results/runs").rglob("metrics.json")))
-    assert computed == expected - 3 + 30 + 4
+    assert computed == expected - 3 + 30 + 10
     table8 = pd.read_csv(work / "results/replicates/tables/table08_scorecard.csv")
     per_draw = {"verdict rep0 (this network)", "verdict rep1 (this network)", "effect rep1"}
     headline = "verdict (draws that trained)"
@@ -503,7 +506,7 @@ def test_deleted_outputs_are_rebuilt_with_everything_downstream(
     assert "`snakemake --cores 2 all` rebuilds them and it" in direct.stderr
     model = work / "results/models/rep1/dpm"
     network = (model / "network.npz").read_bytes()
-    dpm_run = work / "results/runs/learned/rep1/dpm/dpm/pid/eta0/seed0/metrics.json"
+    dpm_run = work / "results/runs/learned/rep1/dpm/dpm/pid/eta0/seed1000/metrics.json"
     deleted = [
         work / "results/tables/rep0/table04_openloop_rmse.md",
         work / "results/figures/tracks_and_data.png",

@@ -49,7 +49,7 @@ def check_consistency(
     """Cross-field rules a JSON schema cannot express; raise ``CapeError`` naming the field.
     ``partial``: the parts of sections a rule passes; a rule whose fields are not all there
     is not checked (the workflow checked the whole config when it started)."""
-    rules = [_check_tracks, _check_training, _check_distinct, _check_eta_labels]
+    rules = [_check_tracks, _check_training, _check_distinct, _check_eta_labels, _check_seeds]
     if "study" in config and (not partial or {"models", "controllers"} <= config.keys()):
         rules.append(_check_grid)  # names every model and controller: needs them all
     for rule in rules:
@@ -116,6 +116,34 @@ def _check_training(config: dict[str, Any], source: str) -> None:
             f"{source}: field `training.max_trainings` is {cap}, below `training.replicates` "
             f"({training['replicates']}): a model could never have its draws; raise it or set null"
         )
+
+
+def _check_seeds(config: dict[str, Any], source: str) -> None:
+    """Draw r's disturbance seeds are r·seed_stride + 0 … its seeds − 1 (SPEC §10, revision 7):
+    a draw's seeds (the study's, or a stage plan's) must fit within the stride, or two draws
+    would share seeds."""
+    study = config["study"]
+    stride = int(study["seed_stride"])
+    plan = (config.get("question") or {}).get("plan") or {}
+    counts = [("study.seeds", study["seeds"])]
+    counts += [(f"question.plan.{k}", plan[k]) for k in ("first_seeds", "later_seeds") if k in plan]
+    for key, count in counts:
+        if int(count) > stride:
+            raise CapeError(
+                f"{source}: field `{key}` is {count}, more than `study.seed_stride` ({stride}): "
+                "draw 1's seeds would overlap draw 0's; raise `study.seed_stride` to at least "
+                f"{count} (or lower `{key}`)"
+            )
+
+
+def schema_default(key: str) -> Any:
+    """The config schema's default of ``key`` (dotted, e.g. ``study.seed_stride``), for a
+    builder given sections validated without their defaults filled in (``partial``: a
+    ``--config-json``, a notebook's or a test's sections); ``KeyError`` when it has none."""
+    node: Any = schemas.load_schema(schemas.CONFIG)
+    for part in key.split("."):
+        node = node["properties"][part]
+    return copy.deepcopy(node["default"])
 
 
 ETA_RANGE = (0.0, 5.0)

@@ -124,7 +124,8 @@ DRAW = Bound(_draw_limits)
 """A draw (training replicate) r: 0 ≤ r < the most ``training.replicates`` allows (a config
 names no draw at or beyond its ``training.replicates``)."""
 SEED = Bound(lambda: Limits(int, "NumPy's seeds are 32-bit", least=0, most=2**32 - 1))
-"""A run's seed (no config key: the grid's are 0 … study.seeds − 1): NumPy's 32-bit range."""
+"""A run's seed (no config key: draw r's are r·study.seed_stride + 0 … study.seeds − 1, draw
+0's 0 … study.seeds − 1): NumPy's 32-bit range."""
 CORES = Bound(lambda: Limits(int, "a count of cores", least=1, most=1_000_000))
 """A number of cores (no config key)."""
 

@@ -86,6 +86,7 @@ class RunId:
 
     def same_run(self) -> tuple[str, str, str, str, int, int]:
         """What the run's result depends on: everything but the study, and the replicate only
-        where a trained model enters the run."""
+        where a trained model enters the run (draws have seeds of their own, SPEC §10 revision
+        7: runs of two draws never coincide, those of two studies of one draw may)."""
         replicate = self.replicate if self.uses_trained_model() else 0
         return (self.plant, self.internal, self.controller, self.eta, self.seed, replicate)

@@ -7,7 +7,21 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any
 
-from cape.config import section
+from cape.config import schema_default, section
+
+
+def draw_seeds(replicate: int, count: int, stride: int) -> range:
+    """Draw ``replicate``'s first ``count`` disturbance seeds: r·stride + 0 … count − 1 (SPEC
+    §10, revision 7), disjoint from every other draw's when ``count`` ≤ ``stride``;
+    ``ValueError`` when it is not, or for a negative draw or count."""
+    if replicate < 0 or count < 0:
+        raise ValueError(f"draw {replicate}, {count} seeds: neither can be negative")
+    if count > stride:
+        raise ValueError(
+            f"{count} seeds per draw exceed `study.seed_stride` ({stride}): draw {replicate}'s "
+            f"seeds would overlap draw {replicate + 1}'s"
+        )
+    return range(replicate * stride, replicate * stride + count)
 
 
 @dataclass(frozen=True)
@@ -50,6 +64,8 @@ class StudySpec:
 
     studies: Mapping[str, StudyGrid]
     seeds: int
+    seed_stride: int
+    """``study.seed_stride``: draw r's disturbance seeds start at r·seed_stride (``draw_seeds``)."""
     max_runs: int
     paper: str | None
     ground_truth: str | None
@@ -76,11 +92,13 @@ class StudySpec:
             etas = section(config, "disturbances").get("eta", [])
             training = section(config, "training")
         cap = training.get("max_trainings")
+        stride = study.get("seed_stride")  # None: sections without defaults (--config-json)
         return cls(
             studies=MappingProxyType(
                 {name: StudyGrid.from_config(grid) for name, grid in study["studies"].items()}
             ),
             seeds=int(study["seeds"]),
+            seed_stride=int(schema_default("study.seed_stride") if stride is None else stride),
             max_runs=int(study.get("max_runs", 20000)),
             paper=study.get("paper"),
             ground_truth=study.get("ground_truth"),
@@ -92,6 +110,14 @@ class StudySpec:
             controllers=MappingProxyType(dict(controllers)),
             models=MappingProxyType(dict(config.get("models") or {})),
         )
+
+    def draw_seeds(self, replicate: int, count: int | None = None) -> range:
+        """Draw ``replicate``'s disturbance seeds (SPEC §10, revision 7): r·seed_stride + 0 …
+        count − 1 (``count``: the study's seeds by default), the same for every model, plant
+        and controller of the draw, disjoint from every other draw's; draw 0's are 0 … S − 1.
+        ``ValueError`` when ``count`` exceeds the stride (the seeds would reach draw r + 1's),
+        or for a negative draw or count."""
+        return draw_seeds(replicate, self.seeds if count is None else count, self.seed_stride)
 
     def internal_studies(self) -> tuple[str, ...]:
         """The studies whose runs are about their internal model (the ground-truth study's

@@ -101,8 +101,8 @@ def read_run(
     files are checked first (``cape.layout.record``): its metrics against their schema, their
     checksum and the run ``expected`` (default: the one the folder names), its timing against
     its checksum, its series against the digest the timing recorded. ``replicate``: the
-    replicate of the study that asks (a run with no trained model is computed once, for
-    replicate 0, and read for every replicate)."""
+    replicate of the study that asks (the run's own: draws share no run, SPEC §10 revision
+    7)."""
     metrics = read_metrics(metrics_path, expected)
     folder = metrics_path.parent
     timing = read_timing(folder)

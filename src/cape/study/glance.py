@@ -66,9 +66,13 @@ def _two_settings(table: pd.DataFrame) -> list[str]:
 
 def _intro(table: pd.DataFrame, runs: pd.DataFrame) -> list[str]:
     draws = draws_of(table)
-    seeds = runs["seed"].nunique() if len(runs) else 0
+    # per draw: each draw has seeds of its own (SPEC §10, revision 7); no column: one draw
+    per_draw = runs.assign(_draw=runs.get("replicate", 0))
+    seeds = int(per_draw.groupby("_draw")["seed"].nunique().max()) if len(runs) else 0
+    own = ", each draw its own" if len(draws) > 1 else ""
     common = (
-        f"{len(runs)} closed-loop runs of the paper's study, {seeds} disturbance seed(s); table 8 "
+        f"{len(runs)} closed-loop runs of the paper's study, {seeds} disturbance seed(s) per "
+        f"draw{own}; table 8 "
         "(`table08_scorecard.md`). A verdict is `holds` when the 95 % interval of the effect "
         "lies wholly on the paper's side, `contradicted` when wholly on the other, `equivalent` "
         "(no practical difference) when the two one-sided tests put it inside the margin its "

@@ -1,5 +1,9 @@
 """The study grid (SPEC §8): every run of a config, enumerated once, by ``study_grid``.
 
+Each draw (replicate) r runs disturbance seeds of its own, ``StudySpec.draw_seeds``: r·stride +
+0 … S − 1, the same for every study, model and controller of the draw, disjoint from every other
+draw's (SPEC §8, §10 revision 7); draw 0's are 0 … S − 1.
+
 A run's result depends on its plant, internal model, controller, η, seed and (when it uses a
 trained model) replicate, never on the study that asks for it. So when two studies ask for the
 same run (the ablation's diagonal, internal = plant, repeats runs of the learned study), it is
@@ -19,11 +23,12 @@ from cape.specs.study import StudySpec
 def study_runs(spec: StudySpec, uses_internal: Callable[[str], bool]) -> list[RunId]:
     """Every run of every study of ``spec``, in the config's order. A controller with an
     internal model crosses the study's ``internal`` list (default: the plant's own model); one
-    without (PID, RISE) runs once per plant, named after the plant."""
+    without (PID, RISE) runs once per plant, named after the plant. Each draw runs on its own
+    seeds (``StudySpec.draw_seeds``)."""
     runs = []
-    seeds = range(spec.seeds)
     for study, grid in spec.studies.items():
         for replicate in grid.draws(spec.replicates):
+            seeds = spec.draw_seeds(replicate)
             for plant in grid.plants:
                 for controller in grid.controllers:
                     own = (plant,)
@@ -39,7 +44,8 @@ def study_runs(spec: StudySpec, uses_internal: Callable[[str], bool]) -> list[Ru
 
 def count_runs(spec: StudySpec, uses_internal: Callable[[str], bool]) -> int:
     """How many runs ``study_runs`` would list, counted without listing them (a grid of a
-    million seeds is refused by its count, before anything is built)."""
+    million seeds is refused by its count, before anything is built): every draw has
+    ``study.seeds`` seeds, its own."""
     total = 0
     for grid in spec.studies.values():
         per_plant = sum(
@@ -66,7 +72,9 @@ def check_grid_size(
 
 def canonical(runs: list[RunId]) -> dict[RunId, RunId]:
     """Each run → the run that computes it: the first of ``runs`` with the same plant,
-    internal model, controller, η and seed."""
+    internal model, controller, η and seed (and draw, where a trained model enters it). Draws
+    do not share seeds, so a run without a trained model (the ground-truth plant under its true
+    model) is shared between studies of one draw, never between draws."""
     first: dict[tuple[str, str, str, str, int, int], RunId] = {}
     return {run: first.setdefault(run.same_run(), run) for run in runs}
 

@@ -9,13 +9,14 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from cape.config import schema_default
 from cape.errors import CapeError
 from cape.layout.names import NMPCS, TRUTH
 from cape.layout.runs import RunId
-from cape.specs.study import StudySpec
+from cape.specs.study import StudySpec, draw_seeds
 
 if TYPE_CHECKING:
     from cape.study.claims import ClosedLoopClaim, Pair
@@ -26,7 +27,8 @@ if TYPE_CHECKING:
 class QuestionSettings:
     """What the question reads from the config: the models (best claimed first), the looks'
     draws per model, the family's α and the spending exponent, the margins by metric, the
-    ground-truth study's name, η grid and seeds, and the least seeds a later draw gets."""
+    ground-truth study's name, η grid and seeds, the least seeds a later draw gets, and the
+    stride of the draws' seeds (``study.seed_stride``)."""
 
     models: tuple[str, ...]
     stages: tuple[int, ...]
@@ -37,6 +39,8 @@ class QuestionSettings:
     etas: tuple[str, ...]
     seeds: int
     least_seeds: int
+    seed_stride: int = field(default_factory=lambda: int(schema_default("study.seed_stride")))
+    """Draw r's seeds start at r·seed_stride (``draw_seeds``); unnamed: the schema's default."""
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any], source: str = "config") -> QuestionSettings:
@@ -73,6 +77,7 @@ class QuestionSettings:
         grid = studies[study]
         etas = tuple(grid.get("eta") or config["disturbances"]["eta"])
         seeds = int(config["study"]["seeds"])
+        stride = config["study"].get("seed_stride")  # None: sections without their defaults
         least = int((q.get("seeds") or {}).get("least", 2))
         return cls(
             models,
@@ -87,7 +92,14 @@ class QuestionSettings:
             etas,
             seeds,
             min(least, seeds),
+            int(schema_default("study.seed_stride") if stride is None else stride),
         )
+
+    def draw_seeds(self, replicate: int, count: int) -> range:
+        """Draw ``replicate``'s first ``count`` disturbance seeds, r·seed_stride + 0 … count − 1:
+        the grid's (``StudySpec.draw_seeds``), shared by the models of the draw, disjoint from
+        every other draw's. ``ValueError`` when ``count`` exceeds the stride."""
+        return draw_seeds(replicate, count, self.seed_stride)
 
     def claims(self) -> tuple[ClosedLoopClaim, ...]:
         from cape.study.claims import question_claims
@@ -172,14 +184,15 @@ class Plan:
 
 def stage_runs(settings: QuestionSettings, plan: Plan) -> list[RunId]:
     """Every run a stage's rows read: each model's draws inside each NMPC on the ground-truth
-    plant, at every η, on the draw's seeds (the study's folder names: ``RunId``)."""
+    plant, at every η, on the draw's own seeds (``QuestionSettings.draw_seeds``; the study's
+    folder names: ``RunId``)."""
     return [
         RunId(settings.study, TRUTH, model, controller, eta, seed, replicate)
         for model, draws in plan.draws.items()
         for replicate in range(draws)
         for controller in NMPCS
         for eta in settings.etas
-        for seed in range(plan.seeds_of(replicate))
+        for seed in settings.draw_seeds(replicate, plan.seeds_of(replicate))
     ]
 
 
