@@ -26,6 +26,7 @@ from cape.study.sequential import (
     Design,
     boundaries,
     look,
+    payoff_seeds,
     seeds_per_draw,
     variance_components,
 )
@@ -160,13 +161,30 @@ def test_an_effect_of_two_between_draw_sds_is_found_with_fewer_draws(law: str) -
     assert used < 15
 
 
-def test_later_draws_get_the_seeds_the_first_look_calls_for() -> None:
+def test_the_payoff_rule_by_hand() -> None:
+    """One model buying 4 draws at 10 s each plus 1 s a seed: a chance that grows as n/10 pays
+    best at the most seeds ((n/10)/(4·(10 + n)) grows with n); a chance that no seed changes
+    pays best at the least; two rows sum their chances; nothing bought: the least."""
+    buying = np.array([[True]])
+    cost = np.array([10.0]), np.array([1.0])
+    grows = lambda n: np.array([[min(1.0, n / 10)]])  # noqa: E731
+    flat = lambda n: np.array([[0.5]])  # noqa: E731
+    assert int(payoff_seeds(grows, buying, 4, *cost, 2, 8)[0]) == 8
+    assert int(payoff_seeds(flat, buying, 4, *cost, 2, 8)[0]) == 2
+    assert int(payoff_seeds(flat, np.array([[False]]), 4, *cost, 2, 8)[0]) == 2
+
+
+def test_later_draws_get_the_seeds_that_pay() -> None:
     """Draws that differ far more than seeds need few seeds: the simulated procedure chooses
-    the least (2) for most trials; where the seeds dominate, all five."""
-    _, _, chosen = calib.run_rows(STUDY, "normal", 0.0, None, ratio=10.0, trials=500)
-    assert np.median(chosen) == 2
-    _, _, chosen = calib.run_rows(STUDY, "normal", 0.0, None, ratio=0.2, trials=500)
-    assert np.median(chosen) == 5
+    the least (2) for most rows; where the draws do not differ at all, a fair share of rows
+    buy the most seeds the costs allow (15 at a draw costing 15 seeds)."""
+    design = Design(STUDY.looks, 15, futility=0.05)
+    out = calib.simulate(calib.one_row("normal", 0.0, 10.0, 1.0), design, calib.Procedure(),
+                         trials=500)  # fmt: skip
+    assert np.median(out.seeds[:, 0]) == 2
+    out = calib.simulate(calib.one_row("normal", 0.5, 0.0, 1.0), design, calib.Procedure(),
+                         trials=500)  # fmt: skip
+    assert (out.seeds[:, 0] == 15).mean() > 0.2
 
 
 # --- the question's plan ---------------------------------------------------------------------
