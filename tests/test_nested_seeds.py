@@ -179,7 +179,7 @@ def test_a_question_stage_runs_each_draw_on_its_own_seeds(draws: int) -> None:
     config = load_config()
     settings = QuestionSettings.from_config(config)
     assert settings.seed_stride == STRIDE
-    plan = Plan({m: draws for m in settings.models}, 3, 5, 4)
+    plan = Plan({m: draws for m in settings.models}, (5, 5, 5) + (4,) * (draws - 3))
     runs = stage_runs(settings, plan)
     assert {r.controller for r in runs} == set(NMPCS)
     assert {r.internal for r in runs} == set(settings.models)
@@ -208,9 +208,8 @@ def test_a_question_setting_without_its_stride_has_the_schemas() -> None:
     [
         ({"study": {"seeds": 5, "seed_stride": 4}}, "study.seeds"),
         ({"study": {"seeds": 1, "seed_stride": 1},
-          "question": {"plan": {"draws": {"epm": 3, "ddm": 3}, "first_draws": 3,
-                                "first_seeds": 1, "later_seeds": 2}}},
-         "question.plan.later_seeds"),
+          "question": {"plan": {"draws": {"epm": 3, "ddm": 3}, "seeds": [1, 1, 1, 2]}}},
+         "question.plan.seeds"),
     ],
 )  # fmt: skip
 def test_seeds_beyond_the_stride_are_refused(change: dict, key: str) -> None:

@@ -243,7 +243,7 @@ def test_a_stage_runs_only_the_questions_nmpc_runs() -> None:
     ground-truth study."""
     config = _config()
     settings = QuestionSettings.from_config(config)
-    plan = Plan({"epm": 6, "ddm": 3, "dpm": 6}, 3, 5, 2)
+    plan = Plan({"epm": 6, "ddm": 3, "dpm": 6}, (5, 5, 5, 2, 2, 2))
     runs = stage_runs(settings, plan)
     per_model = pd.Series([r.internal for r in runs]).value_counts()
     assert per_model["epm"] == 3 * 11 * (3 * 5 + 3 * 2)

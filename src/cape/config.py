@@ -126,7 +126,7 @@ def _check_seeds(config: dict[str, Any], source: str) -> None:
     stride = int(study["seed_stride"])
     plan = (config.get("question") or {}).get("plan") or {}
     counts = [("study.seeds", study["seeds"])]
-    counts += [(f"question.plan.{k}", plan[k]) for k in ("first_seeds", "later_seeds") if k in plan]
+    counts += [("question.plan.seeds", max(plan.get("seeds") or [0]))]
     for key, count in counts:
         if int(count) > stride:
             raise CapeError(

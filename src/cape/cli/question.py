@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import math
 import os
 import re
 import shlex
@@ -185,23 +184,6 @@ def _stop(proc: subprocess.Popen) -> None:
         proc.wait()
 
 
-def _identity(settings: Any) -> dict[str, Any]:
-    """What an earlier run must share for its record to be this question's."""
-    return {"models": list(settings.models), "stages": list(settings.stages),
-            "study": settings.study, "etas": list(settings.etas), "seeds": settings.seeds,
-            "least_seeds": settings.least_seeds}  # fmt: skip
-
-
-def _earlier(settings: Any) -> dict[str, Any]:
-    """The record (looks.json) an earlier run of the same question left, or {}."""
-    path = Path(paths.QUESTION_STATE)
-    try:
-        state = json.loads(path.read_text()) if path.is_file() else {}
-    except (OSError, ValueError):
-        return {}
-    return state if isinstance(state, dict) and state.get("question") == _identity(settings) else {}
-
-
 def snakefile() -> str:
     """The workflow's Snakefile: the working folder's, else the checkout's the package is in."""
     from cape.config import REPO_ROOT
@@ -221,8 +203,9 @@ def cmd_question(args: argparse.Namespace) -> None:
     from cape.storage.ownership import Output
     from cape.study import question_report as report
     from cape.study.leaderboard import recipe
-    from cape.study.question import RowState, evaluate, later_seeds, next_draws
+    from cape.study.question import RowState, evaluate, next_draws, next_seeds
     from cape.study.question_plan import Plan, QuestionSettings, run_overrides
+    from cape.study.question_state import QuestionState
 
     extra = [a for a in args.snakemake_args if a != "--"]
     files = [*DEFAULT_FILES[: 1 if args.no_question_config else 2], *args.configfile]
@@ -235,29 +218,25 @@ def cmd_question(args: argparse.Namespace) -> None:
     outputs = [paths.QUESTION_STAGE, paths.QUESTION_LOOKS, paths.QUESTION_STATE,
                paths.QUESTION_REPORT, paths.QUESTION_COMPONENTS, *logs,
                Path(paths.QUESTION, "logs", "notebook.log")]  # fmt: skip
+    record = QuestionState.read(settings.identity(dict(study.models)))  # refused: nothing changed
     if not args.dry_run:
         _claim(args, *(Output(Path(p), "question report", option="output") for p in outputs))
     draws = {m: settings.stages[0] for m in settings.models}
-    seeds_later = settings.seeds
-    earlier = _earlier(settings)  # a resumed run keeps its seeds, adds to its wall times
-    walls_before = {int(r["stage"]): float(r["wall_s"]) for r in earlier.get("looks", [])}
-    if isinstance(earlier.get("running"), dict):  # a stage stopped before its look
-        walls_before.setdefault(
-            int(earlier["running"]["stage"]), float(earlier["running"]["wall_s"])
-        )
-    seeds_said = f"the study's {settings.seeds} (the costs were not measured)"
+    seeds = [settings.seeds] * settings.stages[0]
     started = time.perf_counter()
-    stages: list[dict[str, Any]] = []
     components = None
+    seeds_said = f"the study's {settings.seeds}"
     print(
         f"cape question: {len(states)} rows ({len(settings.claims())} metrics × "
         f"{len(settings.claims()[0].pairs)} pairs of {', '.join(settings.models)}); looks at "
         f"{', '.join(map(str, settings.stages))} draws per model; family-wise α "
-        f"{settings.alpha:g} (each row {design.per_row:.2g}, spent over the looks)",
+        f"{settings.alpha:g} (each row {design.per_row:.2g}, spent over the looks); futility "
+        f"below a {settings.futility:.0%} chance of settling",
         flush=True,
     )
+    stages: list[dict[str, Any]] = []
     for k, n in enumerate(settings.stages):
-        plan = Plan(draws, settings.stages[0], settings.seeds, seeds_later)
+        plan = Plan(draws, tuple(seeds))
         overrides = run_overrides(study, settings, plan)
         stage_files = [*files, paths.QUESTION_STAGE]
         if args.dry_run:
@@ -266,56 +245,49 @@ def cmd_question(args: argparse.Namespace) -> None:
             print(yaml.safe_dump(overrides, sort_keys=False).rstrip())
             print("$ snakemake question --configfile " + " ".join(stage_files))
             return
-        import yaml
-
-        write_text(paths.QUESTION_STAGE, yaml.safe_dump(overrides, sort_keys=False))
+        write_text(paths.QUESTION_STAGE, _yaml(overrides))
         print(
             f"stage {k + 1}/{len(settings.stages)}: draws "
             + ", ".join(f"{m.upper()} {d}" for m, d in draws.items())
-            + f"; seeds per draw {settings.seeds} (draws ≥ {settings.stages[0]}: {seeds_later})",
+            + f"; seeds per draw {report.seed_runs(seeds)}",
             flush=True,
         )
         tick = time.perf_counter()
-        log = Path(paths.QUESTION, "logs", f"stage{k + 1}.log")
         try:
-            _snakemake(stage_files, args.cores, extra, log, f"stage {k + 1}")
+            _snakemake(stage_files, args.cores, extra, logs[k], f"stage {k + 1}")
         except BaseException:  # stopped or failed: its wall time so far is kept for the resume
-            spent = time.perf_counter() - tick + walls_before.get(k + 1, 0.0)
-            said = seeds_later if k > 0 else earlier.get("later_seeds")
-            state = {"question": _identity(settings), "later_seeds": said, "looks": stages,
-                     "running": {"stage": k + 1, "wall_s": round(spent, 1)}}  # fmt: skip
-            write_text(paths.QUESTION_STATE, json.dumps(state, indent=1, default=str))
+            record.stopped[k + 1] = round(time.perf_counter() - tick + record.wall_before(k + 1), 1)
+            record.looks, record.seeds = stages, seeds
+            write_text(paths.QUESTION_STATE, record.as_json())
             raise
         runs = report.read_stage_runs(settings, plan)
-        evaluate(runs, states, design, k)
         cost = report.costs(settings, plan)
-        if k == 0:
-            ratio = cost.cost_ratio()
-            if ratio is not None:
-                seeds_later, components = later_seeds(
-                    runs, states, n, settings.seeds, ratio, settings.least_seeds
+        most = report.most_seeds(settings, cost)
+        evaluate(runs, states, design, k, most)
+        wall = time.perf_counter() - tick + record.wall_before(k + 1)
+        record.stopped.pop(k + 1, None)
+        if k + 1 < len(settings.stages) and not all(s.done for s in states):
+            following = next_draws(states, draws, settings.stages[k + 1])
+            planned = record.seeds[len(seeds) : settings.stages[k + 1]]
+            if len(planned) == settings.stages[k + 1] - len(seeds):  # a resumed run's own
+                chosen, components = planned[0], None
+                seeds_said = "as this question's first run chose (looks.json)"
+            else:
+                chosen, components, seeds_said = next_seeds(
+                    runs, states, design, k, draws, cost, settings, most
                 )
-                seeds_said = (
-                    f"{seeds_later}, the two-stage optimum at a draw costing {ratio:.2g} seeds' "
-                    "runs (the median over the open rows, below)"
-                    if components is not None and len(components)
-                    else f"the study's {settings.seeds} (no open row had two seeds or more to "
-                    "measure the spread within a draw)"
-                )
-            if isinstance(earlier.get("later_seeds"), int):  # the CPU it reads may differ now
-                seeds_later = min(max(earlier["later_seeds"], settings.least_seeds), settings.seeds)
-                seeds_said = f"{seeds_later}, as the first run of this question chose"
-        wall = time.perf_counter() - tick + walls_before.get(k + 1, 0.0)
-        stages.append(report.stage_record(k, n, draws, states, cost, wall))
+            seeds = seeds + [chosen] * (settings.stages[k + 1] - len(seeds))
+        stages.append(report.stage_record(k, n, draws, states, cost, wall, seeds))
+        record.looks, record.seeds = stages, seeds
         write_text(paths.QUESTION_LOOKS, report.looks_frame(states).to_csv(index=False))
-        state = {"question": _identity(settings), "later_seeds": seeds_later, "looks": stages}
-        write_text(paths.QUESTION_STATE, json.dumps(state, indent=1, default=str))
+        write_text(paths.QUESTION_STATE, record.as_json())
         if components is not None:
             write_text(paths.QUESTION_COMPONENTS, components.to_csv(index=False))
-        remaining = report.remaining(states, settings, draws, cost, seeds_later)
+        later = seeds[-1]
+        remaining = report.remaining(states, settings, draws, cost, later)
         walls = {
-            n: report.projected_wall(states, settings, draws, cost, seeds_later, n)
-            for n in dict.fromkeys((2, args.project_cores))
+            c: report.projected_wall(states, settings, draws, cost, later, c)
+            for c in dict.fromkeys((2, args.project_cores))
         }
         write_text(
             paths.QUESTION_REPORT,
@@ -329,29 +301,16 @@ def cmd_question(args: argparse.Namespace) -> None:
                 remaining,
                 walls,
                 {m: recipe(study.models[m]) for m in settings.models},
-                report.further_draw(cost, settings, seeds_later),
+                report.further_draw(cost, settings, later),
             ),
         )
-        settled = sum(s.settled for s in states)
         finished = all(s.done for s in states)
-        if finished:
-            ahead = "done"
-        elif math.isfinite(remaining):
-            ahead = f"to the cap at most {remaining:,.0f} s more CPU, ≈ " + ", ".join(
-                f"{w / 3600:.1f} h on {n} cores" for n, w in walls.items() if math.isfinite(w)
-            )
-        else:
-            ahead = "to the cap: its cost is not measured (a benchmark file is missing)"
-        print(
-            f"stage {k + 1}: {settled} of {len(states)} rows settled ("
-            + ", ".join(f"{v} {c}" for v, c in report.tally(states).items())
-            + f"); CPU so far {cost.total:,.0f} s; {ahead}",
-            flush=True,
-        )
+        print(f"stage {k + 1}: " + report.summary_line(states, cost, finished, remaining, walls),
+              flush=True)  # fmt: skip
         if finished:
             break
         if k + 1 < len(settings.stages):
-            draws = next_draws(states, draws, settings.stages[k + 1])
+            draws = following
     notebook = paths.scoped(paths.QUESTION, "notebooks", "question.ipynb")
     _snakemake(stage_files, args.cores, extra, Path(paths.QUESTION, "logs", "notebook.log"),
                "the report's notebook", notebook)  # fmt: skip
@@ -361,3 +320,9 @@ def cmd_question(args: argparse.Namespace) -> None:
         f"{notebook} ({wall:,.0f} s)",
         flush=True,
     )
+
+
+def _yaml(value: Any) -> str:
+    import yaml
+
+    return yaml.safe_dump(value, sort_keys=False)

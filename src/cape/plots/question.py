@@ -16,6 +16,7 @@ COLOURS = {
     "contradicted": "#d62728",
     "equivalent": "#1f77b4",
     "inconclusive": "#7f7f7f",
+    "inconclusive (futile)": "#c7c7c7",
     "open": "#bcbd22",
 }
 

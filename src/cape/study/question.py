@@ -12,15 +12,25 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from cape.study.question_plan import Row
 from cape.study.scorecard import pair_effects, per_seed
-from cape.study.sequential import INCONCLUSIVE, OPEN, SETTLED, Design, Look, look, seeds_per_draw
-from cape.study.sequential import variance_components as components
+from cape.study.sequential import (
+    FUTILE,
+    INCONCLUSIVE,
+    OPEN,
+    SETTLED,
+    Design,
+    Look,
+    components,
+    look,
+    settle_chance,
+)
 
 
 @dataclass
@@ -44,40 +54,104 @@ class RowState:
         return self.decision != OPEN
 
 
-def draw_values(runs: pd.DataFrame, row: Row, draws: int) -> list[float]:
-    """The row's effect per training draw (the mean over its seeds, paired by seed), for the
-    first ``draws`` draws of its models: a draw with no finite value is left out."""
+def draw_table(runs: pd.DataFrame, row: Row, draws: int) -> list[np.ndarray]:
+    """The row's effects per training draw and seed (paired by seed; non-finite ones left out),
+    for the first ``draws`` draws of its models: one array per draw, empty where it has none."""
     selected = row.claim.select(runs)
     per = per_seed(selected, row.claim) if len(selected) else {}
     effects = pair_effects(per, row.pair, row.claim)
-    out = []
-    for replicate in range(draws):
-        values = [v for v in effects.get(replicate, []) if math.isfinite(v)]
-        if values:
-            out.append(float(np.mean(values)))
-    return out
+    return [
+        np.asarray([v for v in effects.get(r, []) if math.isfinite(v)], dtype=float)
+        for r in range(draws)
+    ]
+
+
+def draw_values(runs: pd.DataFrame, row: Row, draws: int) -> list[float]:
+    """The row's effect per training draw (the mean over its seeds, paired by seed), for the
+    first ``draws`` draws of its models: a draw with no finite value is left out."""
+    return [float(t.mean()) for t in draw_table(runs, row, draws) if t.size]
+
+
+@dataclass(frozen=True)
+class Spread:
+    """A row's draws × seeds structure at a look: σ²_between draws, σ²_within a draw (pooled
+    over its seeds), the mean of 1/seeds over its draws, and the variance of its draws' mean
+    effects (the t-test's)."""
+
+    between: float
+    within: float
+    inverse_seeds: float
+    variance: float
+
+    @classmethod
+    def of(cls, table: Sequence[np.ndarray]) -> Spread:
+        sums = np.array([t.sum() for t in table])
+        squares = np.array([(t**2).sum() for t in table])
+        counts = np.array([t.size for t in table], dtype=float)
+        between, within = components(sums, squares, counts)
+        means = sums / counts
+        variance = float(means.var(ddof=1)) if means.size > 1 else 0.0
+        return cls(float(between), float(within), float((1 / counts).mean()), variance)
+
+    @property
+    def floor(self) -> float:
+        """The least variance a draw's effect has: its seeds' (``sequential.decide``)."""
+        return self.within * self.inverse_seeds
+
+    @property
+    def seeds_share(self) -> float:
+        """The share of a draw's effect variance its seeds make: σ²_w·mean(1/S) over that plus
+        σ²_b (1: the draws differ by their seeds alone; NaN: no spread at all)."""
+        total = self.between + self.floor
+        return self.floor / total if total > 0 else math.nan
+
+    def later(self, seeds: int) -> float:
+        """The variance of a further draw's effect on ``seeds`` seeds."""
+        return self.between + self.within / seeds
 
 
 def evaluate(
-    runs: pd.DataFrame, states: Sequence[RowState], design: Design, stage: int
+    runs: pd.DataFrame,
+    states: Sequence[RowState],
+    design: Design,
+    stage: int,
+    most_seeds: int | None = None,
 ) -> list[RowState]:
     """Look ``stage`` at every row still open: its decision from its draws' effects at the
-    stage's draws. A row with fewer values than that (a draw untrained at the cap, or with no
-    finite effect) cannot be looked at as planned: it is inconclusive for good, said in its
-    ``why``, and buys no more draws. Decided rows keep their decision."""
+    stage's draws, their variance no less than their seeds' (``Spread.floor``). A row with fewer
+    values than that (a draw untrained at the cap, or with no finite effect) cannot be looked at
+    as planned: it is inconclusive for good, said in its ``why``, and buys no more draws. A row
+    left open whose chance of settling by the cap, its later draws on ``most_seeds`` seeds
+    (default: as many as its draws have), is below ``design.futility`` is ``FUTILE``. Decided
+    rows keep their decision."""
     n = design.looks[stage]
     last = stage == len(design.looks) - 1
     nothing = (math.nan,) * 6
     for state in states:
         if state.done:
             continue
-        values = draw_values(runs, state.row, n)
+        table = draw_table(runs, state.row, n)
+        values = [float(t.mean()) for t in table if t.size]
         if len(values) < n:
             why = f"{len(values)} of {n} draws have a value (a draw untrained, or no finite effect)"
             state.looks.append(Look(len(values), *nothing, INCONCLUSIVE, why))
             continue
+        spread = Spread.of(table)
         side = float(np.sign(state.row.pair.paper_effect))
-        state.looks.append(look(values, design, state.row.margin, side, last))
+        found = look(values, design, state.row.margin, side, last, spread.floor)
+        chance = math.nan
+        if found.decision == OPEN:
+            seeds = most_seeds or max(t.size for t in table)
+            later = spread.later(seeds)
+            margin = state.row.margin
+            chance = float(settle_chance(found.estimate, spread.variance, n, later, design, margin))
+            if design.futility > 0 and chance < design.futility:
+                why = (
+                    f"futile: its chance of settling by {design.cap} draws is {chance:.1%}, "
+                    f"below {design.futility:.0%}"
+                )
+                found = replace(found, decision=FUTILE, why=why)
+        state.looks.append(replace(found, chance=chance, spread=spread))
     return list(states)
 
 
@@ -88,42 +162,99 @@ def next_draws(states: Iterable[RowState], current: Mapping[str, int], n: int) -
     return {m: (max(n, d) if m in open_models else d) for m, d in current.items()}
 
 
-def later_seeds(
+COMPONENT_COLUMNS = [
+    "claim",
+    "comparison",
+    "between_var",
+    "within_var",
+    "seeds_share",
+    "chance_next",
+]
+
+
+def payoff(
     runs: pd.DataFrame,
     states: Sequence[RowState],
-    draws: int,
-    seeds: int,
-    cost_ratio: float,
+    design: Design,
+    stage: int,
+    draws: Mapping[str, int],
+    draw_cost: Mapping[str, float],
+    seed_cost: float,
     least: int,
+    most: int,
 ) -> tuple[int, pd.DataFrame]:
-    """The seeds per later draw: each open row's two-stage optimum from its variance
-    components over the first look's ``draws`` × ``seeds`` (``sequential.seeds_per_draw``; the
-    cost of a draw over the cost of one seed's runs, ``cost_ratio``), then the median over the
-    rows, rounded up. Returns it and the components per row (the report's)."""
-    records = []
-    for state in states:
-        if state.done:
-            continue
-        row = state.row
-        selected = row.claim.select(runs)
-        effects = pair_effects(per_seed(selected, row.claim), row.pair, row.claim)
-        table = [effects.get(r, [])[:seeds] for r in range(draws)]
-        if any(len(t) < seeds for t in table) or seeds < 2:
-            continue
-        between, within = components(np.asarray(table, dtype=float)[None])
-        n = seeds_per_draw(between, within, cost_ratio, least, seeds)
-        records.append(
-            {
-                "claim": row.name,
-                "comparison": row.comparison,
-                "between_var": float(between[0]),
-                "within_var": float(within[0]),
-                "seeds": int(n[0]),
-            }
-        )
+    """The seeds of the next stage's draws (``sequential.payoff_seeds``): of ``least`` …
+    ``most``, the number that settles most open rows at the next look per CPU-second of the
+    draws it buys (each model's ``draw_cost`` and ``seed_cost`` per seed's runs). Returns it,
+    and per open row its spread and its chance of settling at the next look on that many."""
+    from cape.study.sequential import payoff_seeds
+
+    n, ahead = design.looks[stage], stage + 1
+    models = sorted({m for s in states if not s.done for m in s.row.models})
+    alive = [s for s in states if not s.done and s.looks and s.looks[-1].spread is not None]
+    if not models or not alive:
+        return least, pd.DataFrame(columns=COMPONENT_COLUMNS)
+
+    def chance(seeds: int) -> np.ndarray:
+        out = []
+        for s in alive:
+            lk = s.looks[-1]
+            later = lk.spread.later(seeds)
+            out.append(
+                float(
+                    settle_chance(
+                        lk.estimate, lk.spread.variance, n, later, design, s.row.margin, ahead
+                    )
+                )
+            )
+        return np.array([out])
+
+    buying = np.array([[True] * len(models)])
+    left = design.looks[ahead] - min(draws.get(m, n) for m in models)
+    cost = np.array([draw_cost.get(m, math.nan) for m in models])
+    seed = np.full(len(models), seed_cost)
+    pick = int(payoff_seeds(chance, buying, left, cost, seed, least, most)[0])
+    chances = chance(pick)[0]
     frame = pd.DataFrame(
-        records, columns=["claim", "comparison", "between_var", "within_var", "seeds"]
+        [
+            {
+                "claim": s.row.name,
+                "comparison": s.row.comparison,
+                "between_var": s.looks[-1].spread.between,
+                "within_var": s.looks[-1].spread.within,
+                "seeds_share": s.looks[-1].spread.seeds_share,
+                "chance_next": float(c),
+            }
+            for s, c in zip(alive, chances, strict=True)
+        ],
+        columns=COMPONENT_COLUMNS,
     )
-    if frame.empty:
-        return seeds, frame
-    return math.ceil(float(frame["seeds"].median())), frame
+    return pick, frame
+
+
+def next_seeds(
+    runs: pd.DataFrame,
+    states: Sequence[RowState],
+    design: Design,
+    stage: int,
+    draws: Mapping[str, int],
+    cost: Any,
+    settings: Any,
+    most: int,
+) -> tuple[int, pd.DataFrame | None, str]:
+    """The seeds of the next stage's draws, the open rows' components behind them, and a
+    sentence saying how they were chosen: ``payoff`` at the measured costs (``cost``: a
+    ``question_report.Cost``), within [``settings.least_seeds``, ``most``]; the study's seeds
+    where a cost is not measured."""
+    per_draw = {m: cost.per_draw(m) for m in settings.models}
+    per_seed = cost.per_seed()
+    if not math.isfinite(per_seed) or any(not math.isfinite(c) for c in per_draw.values()):
+        return settings.seeds, None, f"the study's {settings.seeds} (a cost is not measured)"
+    least = min(settings.least_seeds, most)
+    chosen, frame = payoff(runs, states, design, stage, draws, per_draw, per_seed, least, most)
+    said = (
+        f"{chosen} for the draws after {design.looks[stage]}: of {least} … {most} (the most "
+        f"a draw's training pays for: {per_seed:,.0f} s of runs a seed), the number that settles "
+        "most open rows at the next look per CPU-second (docs/question.md)"
+    )
+    return chosen, frame, said

@@ -27,8 +27,9 @@ if TYPE_CHECKING:
 class QuestionSettings:
     """What the question reads from the config: the models (best claimed first), the looks'
     draws per model, the family's α and the spending exponent, the margins by metric, the
-    ground-truth study's name, η grid and seeds, the least seeds a later draw gets, and the
-    stride of the draws' seeds (``study.seed_stride``)."""
+    ground-truth study's name, η grid and seeds, the least seeds a later draw gets, the
+    stride of the draws' seeds (``study.seed_stride``), the futility level and the most seeds
+    a later draw gets (None: from the measured costs)."""
 
     models: tuple[str, ...]
     stages: tuple[int, ...]
@@ -41,6 +42,10 @@ class QuestionSettings:
     least_seeds: int
     seed_stride: int = field(default_factory=lambda: int(schema_default("study.seed_stride")))
     """Draw r's seeds start at r·seed_stride (``draw_seeds``); unnamed: the schema's default."""
+    futility: float = field(default_factory=lambda: float(schema_default("question.futility")))
+    """A row whose chance of settling by the cap falls below this stops buying draws."""
+    most_seeds: int | None = None
+    """The most seeds a later draw gets; None: as many as cost what a draw costs (measured)."""
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any], source: str = "config") -> QuestionSettings:
@@ -78,7 +83,23 @@ class QuestionSettings:
         etas = tuple(grid.get("eta") or config["disturbances"]["eta"])
         seeds = int(config["study"]["seeds"])
         stride = config["study"].get("seed_stride")  # None: sections without their defaults
-        least = int((q.get("seeds") or {}).get("least", 2))
+        seeds_of = q.get("seeds") or {}
+        least = int(seeds_of.get("least", schema_default("question.seeds.least")))
+        most = seeds_of.get("most")
+        stride = int(schema_default("study.seed_stride") if stride is None else stride)
+        for key, value in (("least", least), ("most", most)):
+            if value is not None and int(value) > stride:
+                raise CapeError(
+                    f"{source}: field `question.seeds.{key}` is {value}, more than "
+                    f"`study.seed_stride` ({stride}): a draw's seeds would reach the next "
+                    "draw's; lower it or raise the stride"
+                )
+        if most is not None and int(most) < least:
+            raise CapeError(
+                f"{source}: field `question.seeds.most` ({most}) is below `question.seeds.least` "
+                f"({least}); set most to at least {least}"
+            )
+        futility = q.get("futility", schema_default("question.futility"))
         return cls(
             models,
             stages,
@@ -91,8 +112,10 @@ class QuestionSettings:
             study,
             etas,
             seeds,
-            min(least, seeds),
-            int(schema_default("study.seed_stride") if stride is None else stride),
+            least,
+            stride,
+            float(futility),
+            None if most is None else int(most),
         )
 
     def draw_seeds(self, replicate: int, count: int) -> range:
@@ -122,7 +145,29 @@ class QuestionSettings:
     def design(self) -> Design:
         from cape.study.sequential import Design
 
-        return Design(self.stages, len(self.rows()), self.alpha, self.spending)
+        return Design(self.stages, len(self.rows()), self.alpha, self.spending, self.futility)
+
+    def identity(self, recipes: Mapping[str, Any]) -> dict[str, Any]:
+        """The question's design, fixed before its first look (SPEC §10, revision 7): what a
+        rerun must share to continue it. ``recipes``: each model's config entry."""
+        return {
+            "models": list(self.models),
+            "recipes": {m: recipes.get(m) for m in self.models},
+            "stages": list(self.stages),
+            "alpha": self.alpha,
+            "spending": self.spending,
+            "futility": self.futility,
+            "margins": dict(sorted(self.margins.items())),
+            "study": self.study,
+            "etas": list(self.etas),
+            "seeds": self.seeds,
+            "seed rule": {
+                "rule": "payoff",
+                "least": self.least_seeds,
+                "most": self.most_seeds,
+                "stride": self.seed_stride,
+            },
+        }
 
 
 @dataclass(frozen=True)
@@ -152,34 +197,37 @@ class Row:
 
 @dataclass(frozen=True)
 class Plan:
-    """A stage's runs: trained draws per model, and seeds per draw (the first ``first_draws``
-    draws of a model have ``first_seeds``, later ones ``later_seeds``)."""
+    """A stage's runs: trained draws per model, and the seeds of each draw index (draw r of
+    every model runs ``seeds[r]`` seeds, its own: ``QuestionSettings.draw_seeds``)."""
 
     draws: Mapping[str, int]
-    first_draws: int
-    first_seeds: int
-    later_seeds: int
+    seeds: tuple[int, ...]
+
+    def __post_init__(self) -> None:
+        most = max(self.draws.values(), default=0)
+        if len(self.seeds) < most or any(n < 1 for n in self.seeds):
+            raise ValueError(f"seeds for {most} draws needed, each at least one: {self.seeds}")
 
     def seeds_of(self, replicate: int) -> int:
-        return self.first_seeds if replicate < self.first_draws else self.later_seeds
+        return self.seeds[replicate]
 
     def as_config(self) -> dict[str, Any]:
         """The ``question.plan`` section the ``question`` target reads."""
-        return {
-            "draws": dict(self.draws),
-            "first_draws": self.first_draws,
-            "first_seeds": self.first_seeds,
-            "later_seeds": self.later_seeds,
-        }
+        return {"draws": dict(self.draws), "seeds": list(self.seeds)}
 
     @classmethod
-    def from_config(cls, plan: Mapping[str, Any]) -> Plan:
-        return cls(
-            {str(k): int(v) for k, v in plan["draws"].items()},
-            int(plan["first_draws"]),
-            int(plan["first_seeds"]),
-            int(plan["later_seeds"]),
-        )
+    def from_config(cls, plan: Mapping[str, Any], source: str = "question.plan") -> Plan:
+        """From a validated ``question.plan``; ``CapeError`` naming the field where its seeds
+        do not cover its draws."""
+        draws = {str(k): int(v) for k, v in plan["draws"].items()}
+        try:
+            return cls(draws, tuple(int(n) for n in plan["seeds"]))
+        except ValueError as exc:
+            raise CapeError(
+                f"{source}: field `question.plan.seeds` must give every draw up to "
+                f"{max(draws.values(), default=0)} its seeds ({exc}); `cape question` writes "
+                "this plan: run it again rather than editing results/question/stage.yaml"
+            ) from exc
 
 
 def stage_runs(settings: QuestionSettings, plan: Plan) -> list[RunId]:

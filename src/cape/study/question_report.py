@@ -19,13 +19,14 @@ from cape.study.question_plan import Plan, QuestionSettings, stage_runs
 from cape.study.sequential import (
     CONTRADICTED,
     EQUIVALENT,
+    FUTILE,
     HOLDS,
     INCONCLUSIVE,
     OPEN,
     Design,
 )
 
-DECISIONS = (HOLDS, CONTRADICTED, EQUIVALENT, INCONCLUSIVE, OPEN)
+DECISIONS = (HOLDS, CONTRADICTED, EQUIVALENT, INCONCLUSIVE, FUTILE, OPEN)
 
 
 def draw_meta(model: str, replicate: int) -> dict[str, Any]:
@@ -104,6 +105,17 @@ class Cost:
         return sum(draws) / len(draws) / seed
 
 
+def most_seeds(settings: QuestionSettings, cost: Cost) -> int:
+    """The most seeds a later draw may get: ``question.seeds.most``, else as many as cost what
+    a draw costs (its training and solvers over one seed's runs, the mean over the models), at
+    least the study's seeds and at most the seed stride."""
+    if settings.most_seeds is not None:
+        return settings.most_seeds
+    ratio = cost.cost_ratio()
+    most = settings.seeds if ratio is None else max(settings.seeds, math.floor(ratio))
+    return min(most, settings.seed_stride)
+
+
 def _cpu(path: Path) -> float | None:
     from cape.storage.io import read_benchmark
 
@@ -174,12 +186,19 @@ def stage_record(
     states: Sequence[RowState],
     cost: Cost,
     wall: float,
+    seeds: Sequence[int] = (),
 ) -> dict[str, Any]:
-    """One stage's line of the report."""
+    """One stage's line of the report (``seeds``: each draw index's, the next stage's
+    included)."""
     return {
         "stage": stage + 1,
         "look at draws": n,
         "draws": dict(draws),
+        "seeds": list(seeds),
+        "cpu by model": {
+            m: round(sum(cost.trainings.get(m, [])) + cost.solvers.get(m, 0.0), 1) for m in draws
+        },
+        "runs_s": round(cost.runs_s, 1),
         "trainings tried": dict(cost.tried),
         "trainings failed": dict(cost.failed),
         **{d: sum(s.decision == d for s in states) for d in DECISIONS},
@@ -210,9 +229,43 @@ def looks_frame(states: Sequence[RowState]) -> pd.DataFrame:
                     "side": s.row.pair.paper_effect,
                     "decision": lk.decision,
                     "why": lk.why,
+                    "chance": lk.chance,
+                    **_spread(lk),
                 }
             )
     return pd.DataFrame(records)
+
+
+def _spread(lk: Any) -> dict[str, float]:
+    """A look's draws × seeds structure, for looks.csv."""
+    sp = lk.spread
+    if sp is None:
+        return {"between_var": math.nan, "within_var": math.nan, "seeds_share": math.nan}
+    return {"between_var": sp.between, "within_var": sp.within, "seeds_share": sp.seeds_share}
+
+
+def summary_line(
+    states: Sequence[RowState],
+    cost: Cost,
+    finished: bool,
+    remaining_cpu: float,
+    walls: Mapping[int, float],
+) -> str:
+    """The terminal's line after a look: rows settled, their verdicts, the CPU, what is left."""
+    if finished:
+        ahead = "done"
+    elif math.isfinite(remaining_cpu):
+        ahead = f"to the cap at most {remaining_cpu:,.0f} s more CPU, ≈ " + ", ".join(
+            f"{w / 3600:.1f} h on {n} cores" for n, w in walls.items() if math.isfinite(w)
+        )
+    else:
+        ahead = "to the cap: its cost is not measured (a benchmark file is missing)"
+    settled = sum(s.settled for s in states)
+    verdicts = ", ".join(f"{v} {c}" for v, c in tally(states).items())
+    return (
+        f"{settled} of {len(states)} rows settled ({verdicts}); CPU so far {cost.total:,.0f} s; "
+        f"{ahead}"
+    )
 
 
 def remaining(
@@ -275,6 +328,25 @@ def _fmt(value: float, digits: int = 3) -> str:
     return "–" if value is None or not math.isfinite(value) else f"{value:.{digits}g}"
 
 
+def _pct(value: float) -> str:
+    return "–" if value is None or not math.isfinite(value) else f"{value:.0%}"
+
+
+def _share(lk: Any) -> str:
+    return "–" if lk.spread is None else _pct(lk.spread.seeds_share)
+
+
+def seed_runs(seeds: Sequence[int]) -> str:
+    """Seeds per draw index, run-length encoded: ``5 (draws 0–2), 3 (draws 3–5)``."""
+    parts, start = [], 0
+    for r in range(1, len(seeds) + 1):
+        if r == len(seeds) or seeds[r] != seeds[start]:
+            span = f"draw {start}" if r - start == 1 else f"draws {start}–{r - 1}"
+            parts.append(f"{seeds[start]} ({span})")
+            start = r
+    return ", ".join(parts)
+
+
 def markdown(
     settings: QuestionSettings,
     design: Design,
@@ -314,8 +386,8 @@ def markdown(
         "## Stages",
         "",
         "| stage | draws per model | trainings tried (failed) | holds | contradicted | "
-        "equivalent | inconclusive | open | CPU so far (s) | wall of the stage (s) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "equivalent | inconclusive | futile | open | CPU so far (s) | wall of the stage (s) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in stages:
         draws = ", ".join(f"{m.upper()} {d}" for m, d in s["draws"].items())
@@ -325,7 +397,8 @@ def markdown(
         )
         lines.append(
             f"| {s['stage']} | {draws} | {tried} | {s[HOLDS]} | {s[CONTRADICTED]} | "
-            f"{s[EQUIVALENT]} | {s[INCONCLUSIVE]} | {s[OPEN]} | {s['cpu_s']:,.0f} | "
+            f"{s[EQUIVALENT]} | {s[INCONCLUSIVE]} | {s.get(FUTILE, 0)} | {s[OPEN]} | "
+            f"{s['cpu_s']:,.0f} | "
             f"{s['wall_s']:,.0f} |"
         )
     open_rows = [s for s in states if not s.done]
@@ -337,6 +410,12 @@ def markdown(
         stop = (
             f"the cap ({settings.stages[-1]} draws per model) was reached with "
             f"{len(undecided)} rows inconclusive (each row's `why` says why)"
+        )
+    elif not open_rows and any(s.decision == FUTILE for s in states):
+        stop = (
+            f"every row is settled, or futile ({sum(s.decision == FUTILE for s in states)}: "
+            f"its chance of settling by {settings.stages[-1]} draws fell below "
+            f"{settings.futility:.0%}, so it stopped buying draws) or inconclusive for good"
         )
     elif not open_rows:
         stop = (
@@ -358,8 +437,11 @@ def markdown(
         )
     lines += ["", f"**Where it stopped:** {stop}.", ""]
     lines += [
-        f"Seeds per draw: {settings.seeds} for the first {settings.stages[0]} draws; for later "
-        f"ones {seeds_said}.",
+        f"Seeds per draw (each draw its own: draw r's are r·{settings.seed_stride} + 0 … S − 1, "
+        f"shared by the models of the draw): {settings.seeds} for the first "
+        f"{settings.stages[0]} draws; later ones {seeds_said}"
+        + (f"; as run: {seed_runs(stages[-1].get('seeds', []))}" if stages else "")
+        + ".",
         "",
         *(
             [
@@ -377,9 +459,15 @@ def markdown(
         ),
         "## Rows",
         "",
-        "| claim | comparison | decision | at draws | estimate | interval (difference) | "
-        "interval (equivalence) | margin | why |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "Each row's first interval is valid over all its looks together (a repeated "
+        "confidence interval at its row's α): the differences it excludes are ruled out, "
+        "settled or not. *seeds' share*: of the variance of a draw's effect, the part its "
+        "disturbance seeds make (the rest: the draws' own spread); *chance*: of settling by the "
+        "cap under the current estimate, for rows left open or futile.",
+        "",
+        "| claim | comparison | decision | at draws | estimate | interval over all looks | "
+        "interval (equivalence) | margin | seeds' share | chance | why |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in states:
         lk = s.looks[-1] if s.looks else None
@@ -390,20 +478,25 @@ def markdown(
             f"| {s.row.name} | {s.row.comparison} | {s.decision} | {lk.draws} | "
             f"{_fmt(lk.estimate)} | [{_fmt(lk.low)}, {_fmt(lk.high)}] | "
             f"[{_fmt(lk.equivalence_low)}, {_fmt(lk.equivalence_high)}] | {margin} | "
-            f"{lk.why} |"
+            f"{_share(lk)} | {_pct(lk.chance)} | {lk.why} |"
         )
     if components is not None and not components.empty:
         lines += [
             "",
-            "## Variance components at the first look",
+            "## What chose the latest seeds per draw",
             "",
-            "| claim | comparison | σ² between draws | σ² within a draw | optimal seeds |",
-            "|---|---|---|---|---|",
+            "The open rows' variance components at the last look that chose seeds, and their "
+            "chance of settling at the next look on the seeds chosen.",
+            "",
+            "| claim | comparison | σ² between draws | σ² within a draw | seeds' share | "
+            "chance at the next look |",
+            "|---|---|---|---|---|---|",
         ]
         for _, r in components.iterrows():
             lines.append(
                 f"| {r['claim']} | {r['comparison']} | {_fmt(r['between_var'])} | "
-                f"{_fmt(r['within_var'])} | {int(r['seeds'])} |"
+                f"{_fmt(r['within_var'])} | {_pct(r['seeds_share'])} | "
+                f"{_pct(r['chance_next'])} |"
             )
     return "\n".join(lines) + "\n"
 
@@ -411,8 +504,9 @@ def markdown(
 def final_rows(looks: pd.DataFrame) -> pd.DataFrame:
     """Table 10: every row of the question at its last look (looks.csv's last line per row)."""
     columns = ["claim", "comparison", "decision", "draws", "estimate", "low", "high",
-               "equivalence_low", "equivalence_high", "margin", "why"]  # fmt: skip
+               "equivalence_low", "equivalence_high", "margin", "seeds_share", "chance",
+               "why"]  # fmt: skip
     if looks.empty:
         return pd.DataFrame(columns=columns)
     last = looks.sort_values("look", kind="stable").groupby(["claim", "comparison"], sort=False)
-    return last.tail(1)[columns].reset_index(drop=True)
+    return last.tail(1).reindex(columns=columns).reset_index(drop=True)

@@ -15,6 +15,7 @@ import itertools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -203,6 +204,8 @@ class Look:
     decision: str
     why: str = ""
     chance: float = math.nan
+    spread: Any = None
+    """The row's draws × seeds structure at this look (``cape.study.question.Spread``)."""
 
 
 def look(
