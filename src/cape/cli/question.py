@@ -274,7 +274,7 @@ def cmd_question(args: argparse.Namespace) -> None:
                 seeds_said = "as this question's first run chose (looks.json)"
             else:
                 chosen, components, seeds_said = next_seeds(
-                    runs, states, design, k, draws, cost, settings, most
+                    states, design, k, draws, cost, settings, most
                 )
             seeds = seeds + [chosen] * (settings.stages[k + 1] - len(seeds))
         stages.append(report.stage_record(k, n, draws, states, cost, wall, seeds))

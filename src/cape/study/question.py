@@ -54,12 +54,47 @@ class RowState:
         return self.decision != OPEN
 
 
-def draw_table(runs: pd.DataFrame, row: Row, draws: int) -> list[np.ndarray]:
+PerSeed = Mapping[tuple[str, int], pd.Series]
+"""(model, draw) → a claim's value per seed (``scorecard.per_seed``)."""
+VALUE_COLUMNS = ["metric", "model", "draw", "seed", "value"]
+
+
+def seed_values(runs: pd.DataFrame, rows: Sequence[Row]) -> dict[str, PerSeed]:
+    """Each claim's value per (model, draw, seed) over ``runs``, by claim name: all a look
+    reads (the rows' effects are paired differences of these)."""
+    out: dict[str, PerSeed] = {}
+    for row in rows:
+        if row.name not in out:
+            selected = row.claim.select(runs)
+            out[row.name] = per_seed(selected, row.claim) if len(selected) else {}
+    return out
+
+
+def values_frame(values: Mapping[str, PerSeed]) -> pd.DataFrame:
+    """``seed_values`` as one table (values.csv): metric (the claim's name), model, draw,
+    seed, value."""
+    records = [
+        (name, model, int(draw), int(seed), float(v))
+        for name, per in values.items()
+        for (model, draw), series in sorted(per.items())
+        for seed, v in series.items()
+    ]
+    return pd.DataFrame(records, columns=VALUE_COLUMNS)
+
+
+def values_from_frame(frame: pd.DataFrame) -> dict[str, PerSeed]:
+    """``values_frame``'s inverse."""
+    out: dict[str, dict[tuple[str, int], pd.Series]] = {}
+    for (name, model, draw), group in frame.groupby(["metric", "model", "draw"], sort=True):
+        series = pd.Series(group["value"].to_numpy(float), index=group["seed"].to_numpy(int))
+        out.setdefault(str(name), {})[(str(model), int(draw))] = series.sort_index()
+    return out
+
+
+def draw_table(values: Mapping[str, PerSeed], row: Row, draws: int) -> list[np.ndarray]:
     """The row's effects per training draw and seed (paired by seed; non-finite ones left out),
     for the first ``draws`` draws of its models: one array per draw, empty where it has none."""
-    selected = row.claim.select(runs)
-    per = per_seed(selected, row.claim) if len(selected) else {}
-    effects = pair_effects(per, row.pair, row.claim)
+    effects = pair_effects(values.get(row.name, {}), row.pair, row.claim)
     return [
         np.asarray([v for v in effects.get(r, []) if math.isfinite(v)], dtype=float)
         for r in range(draws)
@@ -69,7 +104,8 @@ def draw_table(runs: pd.DataFrame, row: Row, draws: int) -> list[np.ndarray]:
 def draw_values(runs: pd.DataFrame, row: Row, draws: int) -> list[float]:
     """The row's effect per training draw (the mean over its seeds, paired by seed), for the
     first ``draws`` draws of its models: a draw with no finite value is left out."""
-    return [float(t.mean()) for t in draw_table(runs, row, draws) if t.size]
+    table = draw_table(seed_values(runs, [row]), row, draws)
+    return [float(t.mean()) for t in table if t.size]
 
 
 @dataclass(frozen=True)
@@ -111,13 +147,14 @@ class Spread:
 
 
 def evaluate(
-    runs: pd.DataFrame,
+    values: Mapping[str, PerSeed] | pd.DataFrame,
     states: Sequence[RowState],
     design: Design,
     stage: int,
     most_seeds: int | None = None,
 ) -> list[RowState]:
-    """Look ``stage`` at every row still open: its decision from its draws' effects at the
+    """Look ``stage`` at every row still open (``values``: ``seed_values``, or the runs they
+    are taken from): its decision from its draws' effects at the
     stage's draws, their variance no less than their seeds' (``Spread.floor``). A row with fewer
     values than that (a draw untrained at the cap, or with no finite effect) cannot be looked at
     as planned: it is inconclusive for good, said in its ``why``, and buys no more draws. A row
@@ -127,18 +164,20 @@ def evaluate(
     n = design.looks[stage]
     last = stage == len(design.looks) - 1
     nothing = (math.nan,) * 6
+    if isinstance(values, pd.DataFrame):
+        values = seed_values(values, [s.row for s in states])
     for state in states:
         if state.done:
             continue
-        table = draw_table(runs, state.row, n)
-        values = [float(t.mean()) for t in table if t.size]
-        if len(values) < n:
-            why = f"{len(values)} of {n} draws have a value (a draw untrained, or no finite effect)"
-            state.looks.append(Look(len(values), *nothing, INCONCLUSIVE, why))
+        table = draw_table(values, state.row, n)
+        means = [float(t.mean()) for t in table if t.size]
+        if len(means) < n:
+            why = f"{len(means)} of {n} draws have a value (a draw untrained, or no finite effect)"
+            state.looks.append(Look(len(means), *nothing, INCONCLUSIVE, why))
             continue
         spread = Spread.of(table)
         side = float(np.sign(state.row.pair.paper_effect))
-        found = look(values, design, state.row.margin, side, last, spread.floor)
+        found = look(means, design, state.row.margin, side, last, spread.floor)
         chance = math.nan
         if found.decision == OPEN:
             seeds = most_seeds or max(t.size for t in table)
@@ -173,7 +212,6 @@ COMPONENT_COLUMNS = [
 
 
 def payoff(
-    runs: pd.DataFrame,
     states: Sequence[RowState],
     design: Design,
     stage: int,
@@ -233,7 +271,6 @@ def payoff(
 
 
 def next_seeds(
-    runs: pd.DataFrame,
     states: Sequence[RowState],
     design: Design,
     stage: int,
@@ -251,7 +288,7 @@ def next_seeds(
     if not math.isfinite(per_seed) or any(not math.isfinite(c) for c in per_draw.values()):
         return settings.seeds, None, f"the study's {settings.seeds} (a cost is not measured)"
     least = min(settings.least_seeds, most)
-    chosen, frame = payoff(runs, states, design, stage, draws, per_draw, per_seed, least, most)
+    chosen, frame = payoff(states, design, stage, draws, per_draw, per_seed, least, most)
     said = (
         f"{chosen} for the draws after {design.looks[stage]}: of {least} … {most} (the most "
         f"a draw's training pays for: {per_seed:,.0f} s of runs a seed), the number that settles "
