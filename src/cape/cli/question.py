@@ -61,6 +61,19 @@ def _arguments(p: argparse.ArgumentParser) -> None:
         help="print the first stage's plan and Snakemake command, run nothing",
     )
     p.add_argument(
+        "--from",
+        dest="rederive",
+        metavar="FOLDER",
+        help="run nothing: re-decide every look of a published question (FOLDER: its "
+        "values.csv and looks.json) and check them against its looks.csv",
+    )
+    p.add_argument(
+        "--publish",
+        metavar="FOLDER",
+        help="run nothing: copy the last look's report, tables, figure and per-seed values from "
+        "results/question/ into FOLDER, with provenance.json (e.g. docs/results/question)",
+    )
+    p.add_argument(
         "snakemake_args",
         nargs=argparse.REMAINDER,
         help="after `--`: passed to every Snakemake run (e.g. -- --workflow-profile "
@@ -198,12 +211,23 @@ def snakefile() -> str:
     _arguments,
 )
 def cmd_question(args: argparse.Namespace) -> None:
+    if args.rederive:
+        return _rederive(Path(args.rederive))
+    if args.publish:
+        return _publish(args, Path(args.publish))
     from cape.specs.study import StudySpec
     from cape.storage.io import write_text
     from cape.storage.ownership import Output
     from cape.study import question_report as report
     from cape.study.leaderboard import recipe
-    from cape.study.question import RowState, evaluate, next_draws, next_seeds
+    from cape.study.question import (
+        RowState,
+        evaluate,
+        next_draws,
+        next_seeds,
+        seed_values,
+        values_frame,
+    )
     from cape.study.question_plan import Plan, QuestionSettings, run_overrides
     from cape.study.question_state import QuestionState
 
@@ -216,7 +240,7 @@ def cmd_question(args: argparse.Namespace) -> None:
     states = [RowState(row) for row in settings.rows()]
     logs = [Path(paths.QUESTION, "logs", f"stage{k + 1}.log") for k in range(len(settings.stages))]
     outputs = [paths.QUESTION_STAGE, paths.QUESTION_LOOKS, paths.QUESTION_STATE,
-               paths.QUESTION_REPORT, paths.QUESTION_COMPONENTS, *logs,
+               paths.QUESTION_REPORT, paths.QUESTION_COMPONENTS, paths.QUESTION_VALUES, *logs,
                Path(paths.QUESTION, "logs", "notebook.log")]  # fmt: skip
     record = QuestionState.read(settings.identity(dict(study.models)))  # refused: nothing changed
     if not args.dry_run:
@@ -260,10 +284,11 @@ def cmd_question(args: argparse.Namespace) -> None:
             record.looks, record.seeds = stages, seeds
             write_text(paths.QUESTION_STATE, record.as_json())
             raise
-        runs = report.read_stage_runs(settings, plan)
+        values = seed_values(report.read_stage_runs(settings, plan), settings.rows())
+        write_text(paths.QUESTION_VALUES, values_frame(values).to_csv(index=False))
         cost = report.costs(settings, plan)
         most = report.most_seeds(settings, cost)
-        evaluate(runs, states, design, k, most)
+        evaluate(values, states, design, k, most)
         wall = time.perf_counter() - tick + record.wall_before(k + 1)
         record.stopped.pop(k + 1, None)
         if k + 1 < len(settings.stages) and not all(s.done for s in states):
@@ -277,7 +302,7 @@ def cmd_question(args: argparse.Namespace) -> None:
                     states, design, k, draws, cost, settings, most
                 )
             seeds = seeds + [chosen] * (settings.stages[k + 1] - len(seeds))
-        stages.append(report.stage_record(k, n, draws, states, cost, wall, seeds))
+        stages.append(report.stage_record(k, n, draws, states, cost, wall, seeds, most))
         record.looks, record.seeds = stages, seeds
         write_text(paths.QUESTION_LOOKS, report.looks_frame(states).to_csv(index=False))
         write_text(paths.QUESTION_STATE, record.as_json())
@@ -326,3 +351,56 @@ def _yaml(value: Any) -> str:
     import yaml
 
     return yaml.safe_dump(value, sort_keys=False)
+
+
+def _rederive(folder: Path) -> None:
+    """``--from``: re-decide a published question's looks, then compare them with its own."""
+    from cape.study import question_publish as publish
+
+    state, values, published = publish.read_folder(folder)
+    derived = publish.rederive(state, values)
+    wrong = publish.differences(derived, published)
+    if wrong:
+        raise CapeError(
+            f"{folder / 'looks.csv'}: the re-derivation from values.csv differs in {len(wrong)} "
+            f"place(s), first {wrong[0]}; the published data do not give the published looks"
+        )
+    rows = derived[["claim", "comparison"]].drop_duplicates().shape[0]
+    exact = derived.to_csv(index=False) == (folder / "looks.csv").read_text()
+    print(
+        f"cape question --from {folder}: {len(derived)} looks of {rows} rows re-decided from "
+        f"values.csv; every decision {'and number identical to' if exact else 'equal to'} "
+        f"looks.csv{'' if exact else f' (numbers within {publish.TOLERANCE:g})'}"
+    )
+
+
+def _publish(args: argparse.Namespace, folder: Path) -> None:
+    """``--publish``: results/question/'s answer, copied with its provenance."""
+    import shutil
+
+    from cape.storage.io import write_text
+    from cape.storage.ownership import Output
+    from cape.study import question_publish as publish
+    from cape.study.question_state import QuestionState
+
+    source = Path(paths.QUESTION)
+    missing = [n for n in publish.COPIED if not (source / n).is_file()]
+    if any(n in publish.REQUIRED for n in missing):
+        raise CapeError(
+            f"{source}: no look to publish ({', '.join(missing)} missing); run `cape question` "
+            "first"
+        )
+    files = [*DEFAULT_FILES[: 1 if args.no_question_config else 2], *args.configfile]
+    config = merged_config(files)
+    state = QuestionState._parse(json.loads((source / "looks.json").read_text()))
+    names = [n for n in publish.COPIED if n not in missing]
+    _claim(args, *(Output(folder / n, "published question", option="--publish") for n in
+                   [*names, paths.QUESTION_PROVENANCE]))  # fmt: skip
+    for name in names:
+        target = folder / name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(source / name, target)
+    record = publish.provenance(config, state)
+    write_text(folder / paths.QUESTION_PROVENANCE, json.dumps(record, indent=1, default=str))
+    print(f"cape question --publish: {len(names) + 1} files in {folder}" +
+          (f" ({', '.join(missing)} not there yet)" if missing else ""))  # fmt: skip

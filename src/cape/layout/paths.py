@@ -81,6 +81,10 @@ QUESTION_LOOKS = f"{QUESTION}/looks.csv"
 QUESTION_STATE = f"{QUESTION}/looks.json"
 QUESTION_REPORT = f"{QUESTION}/RESULTS.md"
 QUESTION_COMPONENTS = f"{QUESTION}/variance_components.csv"
+QUESTION_VALUES = f"{QUESTION}/values.csv"
+"""Each row's metric per (model, draw, seed): the data every look is decided from."""
+QUESTION_PROVENANCE = "provenance.json"
+"""A published question's provenance, beside its copies of the files above."""
 
 
 def dataset(track: str) -> str:

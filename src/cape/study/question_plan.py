@@ -118,6 +118,26 @@ class QuestionSettings:
             None if most is None else int(most),
         )
 
+    @classmethod
+    def from_identity(cls, design: Mapping[str, Any]) -> QuestionSettings:
+        """The settings a recorded design (``identity``) was made from; ``KeyError`` or
+        ``TypeError`` where it is not one."""
+        rule = design["seed rule"]
+        return cls(
+            tuple(str(m) for m in design["models"]),
+            tuple(int(n) for n in design["stages"]),
+            float(design["alpha"]),
+            float(design["spending"]),
+            {str(k): float(v) for k, v in design["margins"].items()},
+            str(design["study"]),
+            tuple(str(e) for e in design["etas"]),
+            int(design["seeds"]),
+            int(rule["least"]),
+            int(rule["stride"]),
+            float(design["futility"]),
+            None if rule["most"] is None else int(rule["most"]),
+        )
+
     def draw_seeds(self, replicate: int, count: int) -> range:
         """Draw ``replicate``'s first ``count`` disturbance seeds, r·seed_stride + 0 … count − 1:
         the grid's (``StudySpec.draw_seeds``), shared by the models of the draw, disjoint from

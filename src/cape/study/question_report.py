@@ -187,14 +187,16 @@ def stage_record(
     cost: Cost,
     wall: float,
     seeds: Sequence[int] = (),
+    most: int | None = None,
 ) -> dict[str, Any]:
     """One stage's line of the report (``seeds``: each draw index's, the next stage's
-    included)."""
+    included; ``most``: the most seeds a later draw could get, which futility assumed)."""
     return {
         "stage": stage + 1,
         "look at draws": n,
         "draws": dict(draws),
         "seeds": list(seeds),
+        "most seeds": most,
         "cpu by model": {
             m: round(sum(cost.trainings.get(m, [])) + cost.solvers.get(m, 0.0), 1) for m in draws
         },

@@ -1,0 +1,189 @@
+"""A question's answer, published and re-derivable (docs/question.md, "Published answers").
+
+``publish`` copies what `cape question` wrote after its last look (RESULTS.md, looks.csv,
+looks.json, values.csv, the variance components, figure 15, table 10) into a folder and adds
+``provenance.json``: the commit, the config's digest, the machine, the training and disturbance
+seeds of every draw, and each stage's CPU and wall time. ``rederive`` re-decides every look
+from such a folder's ``values.csv`` and ``looks.json`` alone, and ``differences`` compares the
+result with its ``looks.csv``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import platform
+import subprocess
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from cape.errors import CapeError
+from cape.study.question import RowState, evaluate, values_from_frame
+from cape.study.question_plan import QuestionSettings
+from cape.study.question_report import draw_meta, looks_frame
+from cape.study.question_state import QuestionState
+
+COPIED = (
+    "RESULTS.md",
+    "looks.csv",
+    "looks.json",
+    "values.csv",
+    "variance_components.csv",
+    "figures/fig15_question_looks.png",
+    "tables/table10_question.md",
+    "tables/table10_question.csv",
+)
+"""What a published question holds, as paths under results/question/ (and the folder)."""
+REQUIRED = ("looks.csv", "looks.json", "values.csv")
+NUMERIC = ("estimate", "se", "low", "high", "equivalence_low", "equivalence_high", "chance")
+TOLERANCE = 1e-9
+"""Relative difference a re-derived number may have from the published one (another CPU's
+floating-point path); decisions must be equal."""
+
+
+def _commit() -> str | None:
+    from cape.config import REPO_ROOT
+
+    try:
+        head = subprocess.run(["git", "-C", str(REPO_ROOT), "rev-parse", "HEAD"],
+                              capture_output=True, text=True, timeout=10, check=True)  # fmt: skip
+        dirty = subprocess.run(["git", "-C", str(REPO_ROOT), "status", "--porcelain", "src"],
+                               capture_output=True, text=True, timeout=10, check=True)  # fmt: skip
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return head.stdout.strip() + (" (src modified)" if dirty.stdout.strip() else "")
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def provenance(config: Mapping[str, Any], state: QuestionState) -> dict[str, Any]:
+    """What made a question's answer: commit, config digest, machine, each model's draws with
+    their training seeds (failed ones too) and disturbance seeds, and every stage's cost."""
+    settings = QuestionSettings.from_identity(state.design)
+    digest = hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()
+    last = state.looks[-1] if state.looks else {}
+    draws: dict[str, list[dict[str, Any]]] = {}
+    for model, count in (last.get("draws") or {}).items():
+        for r in range(int(count)):
+            meta = draw_meta(model, r).get("draw", {})
+            draws.setdefault(model, []).append(
+                {
+                    "draw": r,
+                    "training seed": meta.get("seed"),
+                    "trained": meta.get("trained"),
+                    "trainings tried": [
+                        {"seed": t.get("seed"), "trained": t.get("trained")}
+                        for t in meta.get("trainings", [])
+                    ],
+                    "disturbance seeds": list(
+                        settings.draw_seeds(r, state.seeds[r]) if r < len(state.seeds) else []
+                    ),
+                }
+            )
+    stages = [
+        {
+            "stage": line.get("stage"),
+            "look at draws": line.get("look at draws"),
+            "draws": line.get("draws"),
+            "cpu_s (cumulative)": line.get("cpu_s"),
+            "wall_s": line.get("wall_s"),
+            "trainings tried": line.get("trainings tried"),
+            "trainings failed": line.get("trainings failed"),
+        }
+        for line in state.looks
+    ]
+    return {
+        "commit": _commit(),
+        "config_sha256": digest,
+        "machine": {
+            "cpu": _cpu_model(),
+            "cores": os.cpu_count(),
+            "python": platform.python_version(),
+        },
+        "design": state.design,
+        "draws": draws,
+        "stages": stages,
+        "cpu_s": last.get("cpu_s"),
+        "wall_s": round(sum(float(line.get("wall_s", 0.0)) for line in state.looks), 1),
+    }
+
+
+def read_folder(folder: Path) -> tuple[QuestionState, pd.DataFrame, pd.DataFrame]:
+    """A published (or working) question folder's record, values and looks; ``CapeError``
+    naming the file where one is missing or unreadable."""
+    for name in REQUIRED:
+        if not (folder / name).is_file():
+            raise CapeError(
+                f"{folder / name} not found: a published question holds {', '.join(REQUIRED)} "
+                "(`cape question --publish` writes them)"
+            )
+    try:
+        state = QuestionState._parse(json.loads((folder / "looks.json").read_text()))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise CapeError(f"{folder / 'looks.json'}: not a question's record ({exc!r})") from exc
+    try:
+        values = pd.read_csv(folder / "values.csv")
+        looks = pd.read_csv(folder / "looks.csv", keep_default_na=False, na_values=[""])
+    except (OSError, ValueError) as exc:
+        raise CapeError(f"{folder}: a CSV cannot be read ({exc})") from exc
+    missing = {"metric", "model", "draw", "seed", "value"} - set(values.columns)
+    if missing:
+        raise CapeError(f"{folder / 'values.csv'}: lacks the columns {', '.join(sorted(missing))}")
+    return state, values, looks
+
+
+def rederive(state: QuestionState, values: pd.DataFrame) -> pd.DataFrame:
+    """Every look re-decided from the per-(model, draw, seed) values and the recorded design,
+    the stages' draws and the most seeds each stage assumed: looks.csv's table."""
+    try:
+        settings = QuestionSettings.from_identity(state.design)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CapeError(
+            f"looks.json: its design is not one `cape question` records ({exc!r})"
+        ) from exc
+    design = settings.design()
+    states = [RowState(row) for row in settings.rows()]
+    per_seed = values_from_frame(values)
+    for k, line in enumerate(state.looks):
+        if k >= len(design.looks) or int(line["look at draws"]) != design.looks[k]:
+            raise CapeError(f"looks.json: stage {k + 1} is not the design's look {k + 1}")
+        evaluate(per_seed, states, design, k, line.get("most seeds"))
+    return looks_frame(states)
+
+
+def differences(derived: pd.DataFrame, published: pd.DataFrame) -> list[str]:
+    """Where the re-derived looks differ from the published ones: a row or look missing, a
+    decision, or a number beyond ``TOLERANCE`` (both NaN is equal)."""
+    key = ["claim", "comparison", "look"]
+    out = []
+    a = derived.set_index(key)
+    b = published.set_index(key)
+    for name in sorted(set(a.index) ^ set(b.index), key=str):
+        out.append(f"{' / '.join(map(str, name))}: in one table only")
+    for name in a.index.intersection(b.index):
+        ra, rb = a.loc[name], b.loc[name]
+        where = f"{name[0]} ({name[1]}), look {name[2]}"
+        if str(ra["decision"]) != str(rb["decision"]):
+            out.append(f"{where}: published {rb['decision']!r}, re-derived {ra['decision']!r}")
+        for column in NUMERIC:
+            if column not in a.columns or column not in b.columns:
+                continue
+            x, y = float(ra[column]), float(rb[column])
+            if math.isnan(x) and math.isnan(y):
+                continue
+            if not math.isclose(x, y, rel_tol=TOLERANCE, abs_tol=1e-12):
+                out.append(f"{where}: {column} published {y!r}, re-derived {x!r}")
+    return out
