@@ -97,6 +97,7 @@ def test_the_question_runs_in_stages_resumes_and_settles_a_row(work: Path) -> No
         assert (question / produced).is_file(), produced
     runs = work / "results" / "runs"
     assert (runs / "truth" / "rep2" / "truth" / "dpm" / "anmpc").is_dir()
+    assert (runs / "truth" / "rep2" / "truth" / "dpm" / "anmpc" / "eta0" / "seed2000").is_dir()
     assert (
         not (runs / "learned").exists()
         and not (runs / "truth" / "rep2" / "truth" / "truth").exists()
@@ -138,3 +139,28 @@ def test_a_users_model_is_put_to_the_same_question() -> None:
     plan = yaml.safe_load(result.stdout.split("\n", 1)[1].rsplit("$ snakemake", 1)[0])
     assert plan["question"]["plan"]["draws"] == {"epm": 3, "mlp": 3}
     assert {"epm", "mlp"} <= set(plan["study"]["studies"]["truth"]["internal"])
+
+
+@pytest.mark.slow
+def test_a_published_question_rederives_and_resumes_on_a_fresh_tree(work: Path) -> None:
+    """The smoke question run to its end, published, re-derived from the published folder; then
+    on a tree that lost results/question/ and every run, `--reuse` of the published folder takes
+    the same looks without running a single rollout again."""
+    first = cape(*ARGS, cwd=work, timeout=1800)
+    assert first.returncode == 0, first.stdout + first.stderr
+    folder = work / "published"
+    published = cape(*ARGS, "--publish", str(folder), cwd=work)
+    assert published.returncode == 0, published.stderr
+    provenance = json.loads((folder / "provenance.json").read_text())
+    assert provenance["config_sha256"] and provenance["stages"] and provenance["draws"]["epm"]
+    assert provenance["draws"]["epm"][1]["disturbance seeds"][0] == 1000
+    again = cape("question", "--from", str(folder), cwd=work)
+    assert again.returncode == 0 and "identical to looks.csv" in again.stdout, again.stderr
+
+    looks = (work / "results" / "question" / "looks.csv").read_text()
+    shutil.move(work / "results" / "question", work / "question-earlier")
+    shutil.rmtree(work / "results" / "runs" / "truth")
+    resumed = cape(*ARGS, "--reuse", str(folder), cwd=work, timeout=1800)
+    assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+    assert (work / "results" / "question" / "looks.csv").read_text() == looks
+    assert not (work / "results" / "runs" / "truth").exists()  # no rollout ran

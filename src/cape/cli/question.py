@@ -68,6 +68,12 @@ def _arguments(p: argparse.ArgumentParser) -> None:
         "values.csv and looks.json) and check them against its looks.csv",
     )
     p.add_argument(
+        "--reuse",
+        metavar="FOLDER",
+        help="continue from a published question (e.g. docs/results/question): a draw whose "
+        "values it holds on the planned seeds is not run again, and its chosen seeds are kept",
+    )
+    p.add_argument(
         "--publish",
         metavar="FOLDER",
         help="run nothing: copy the last look's report, tables, figure and per-seed values from "
@@ -242,7 +248,9 @@ def cmd_question(args: argparse.Namespace) -> None:
     outputs = [paths.QUESTION_STAGE, paths.QUESTION_LOOKS, paths.QUESTION_STATE,
                paths.QUESTION_REPORT, paths.QUESTION_COMPONENTS, paths.QUESTION_VALUES, *logs,
                Path(paths.QUESTION, "logs", "notebook.log")]  # fmt: skip
-    record = QuestionState.read(settings.identity(dict(study.models)))  # refused: nothing changed
+    identity = settings.identity(dict(study.models))
+    record = QuestionState.read(identity)  # refused: nothing changed
+    published = _published(args, identity, record)
     if not args.dry_run:
         _claim(args, *(Output(Path(p), "question report", option="output") for p in outputs))
     draws = {m: settings.stages[0] for m in settings.models}
@@ -260,7 +268,7 @@ def cmd_question(args: argparse.Namespace) -> None:
     )
     stages: list[dict[str, Any]] = []
     for k, n in enumerate(settings.stages):
-        plan = Plan(draws, tuple(seeds))
+        plan = Plan(draws, tuple(seeds), _reused(published, settings, draws, seeds))
         overrides = run_overrides(study, settings, plan)
         stage_files = [*files, paths.QUESTION_STAGE]
         if args.dry_run:
@@ -284,10 +292,13 @@ def cmd_question(args: argparse.Namespace) -> None:
             record.looks, record.seeds = stages, seeds
             write_text(paths.QUESTION_STATE, record.as_json())
             raise
-        values = seed_values(report.read_stage_runs(settings, plan), settings.rows())
+        runs = report.read_stage_runs(settings, plan)
+        values = {} if runs is None else seed_values(runs, settings.rows())
+        if published is not None:
+            values = published.merge(values, plan.reused)
         write_text(paths.QUESTION_VALUES, values_frame(values).to_csv(index=False))
         cost = report.costs(settings, plan)
-        most = report.most_seeds(settings, cost)
+        most = _most(published, plan, k, report.most_seeds(settings, cost))
         evaluate(values, states, design, k, most)
         wall = time.perf_counter() - tick + record.wall_before(k + 1)
         record.stopped.pop(k + 1, None)
@@ -302,7 +313,8 @@ def cmd_question(args: argparse.Namespace) -> None:
                     states, design, k, draws, cost, settings, most
                 )
             seeds = seeds + [chosen] * (settings.stages[k + 1] - len(seeds))
-        stages.append(report.stage_record(k, n, draws, states, cost, wall, seeds, most))
+        line = report.stage_record(k, n, draws, states, cost, wall, seeds, most)
+        stages.append(_as_published(line, published, plan, k))
         record.looks, record.seeds = stages, seeds
         write_text(paths.QUESTION_LOOKS, report.looks_frame(states).to_csv(index=False))
         write_text(paths.QUESTION_STATE, record.as_json())
@@ -395,12 +407,61 @@ def _publish(args: argparse.Namespace, folder: Path) -> None:
     state = QuestionState._parse(json.loads((source / "looks.json").read_text()))
     names = [n for n in publish.COPIED if n not in missing]
     _claim(args, *(Output(folder / n, "published question", option="--publish") for n in
-                   [*names, paths.QUESTION_PROVENANCE]))  # fmt: skip
+                   [*names, *publish.DRAWN, paths.QUESTION_PROVENANCE]))  # fmt: skip
     for name in names:
         target = folder / name
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(source / name, target)
+    publish.draw(folder)
     record = publish.provenance(config, state)
     write_text(folder / paths.QUESTION_PROVENANCE, json.dumps(record, indent=1, default=str))
-    print(f"cape question --publish: {len(names) + 1} files in {folder}" +
+    count = len(names) + len(publish.DRAWN) + 1
+    print(f"cape question --publish: {count} files in {folder}" +
           (f" ({', '.join(missing)} not there yet)" if missing else ""))  # fmt: skip
+
+
+def _published(args: argparse.Namespace, identity: dict[str, Any], record: Any) -> Any:
+    """``--reuse``: the published question to continue from (its design must be this one's);
+    with no look of its own yet, the record takes the published seeds of each draw."""
+    if not args.reuse:
+        return None
+    from cape.study.question_publish import Published
+
+    published = Published(Path(args.reuse), identity)
+    if not record.looks and len(published.state.seeds) > len(record.seeds):
+        record.seeds = list(published.state.seeds)
+    return published
+
+
+def _reused(published: Any, settings: Any, draws: dict[str, int], seeds: list[int]) -> frozenset:
+    """The stage's draws whose values the published question holds on their planned seeds."""
+    if published is None:
+        return frozenset()
+    claims = sorted({row.name for row in settings.rows()})
+    return frozenset(
+        (m, r)
+        for m, d in draws.items()
+        for r in range(d)
+        if published.covers(m, r, settings.draw_seeds(r, seeds[r]), claims)
+    )
+
+
+def _as_published(line: dict[str, Any], published: Any, plan: Any, k: int) -> dict[str, Any]:
+    """A stage's line; where every draw of the stage was reused, its CPU, wall time and
+    trainings are the published stage's (nothing ran here to measure them)."""
+    every = {(m, r) for m, d in plan.draws.items() for r in range(d)}
+    earlier = published.stage(k) if published is not None else None
+    if earlier is None or not every or not every <= plan.reused:
+        return line
+    keep = ("cpu_s", "wall_s", "trainings tried", "trainings failed", "cpu by model", "runs_s")
+    return {**line, **{key: earlier[key] for key in keep if key in earlier}, "reused": True}
+
+
+def _most(published: Any, plan: Any, k: int, measured: int) -> int:
+    """The most seeds futility assumes at stage ``k``: the published stage's where all its
+    draws were reused (its costs were measured there, not here), else ``measured``."""
+    earlier = published.stage(k) if published is not None else None
+    every = {(m, r) for m, d in plan.draws.items() for r in range(d)}
+    if earlier is not None and every <= plan.reused and earlier.get("most seeds") is not None:
+        return int(earlier["most seeds"])
+    return measured

@@ -222,6 +222,9 @@ class Plan:
 
     draws: Mapping[str, int]
     seeds: tuple[int, ...]
+    reused: frozenset[tuple[str, int]] = frozenset()
+    """(model, draw) whose values come from a published question (``cape question --reuse``):
+    their runs are not run again."""
 
     def __post_init__(self) -> None:
         most = max(self.draws.values(), default=0)
@@ -233,15 +236,19 @@ class Plan:
 
     def as_config(self) -> dict[str, Any]:
         """The ``question.plan`` section the ``question`` target reads."""
-        return {"draws": dict(self.draws), "seeds": list(self.seeds)}
+        plan: dict[str, Any] = {"draws": dict(self.draws), "seeds": list(self.seeds)}
+        if self.reused:
+            plan["reused"] = [[m, r] for m, r in sorted(self.reused)]
+        return plan
 
     @classmethod
     def from_config(cls, plan: Mapping[str, Any], source: str = "question.plan") -> Plan:
         """From a validated ``question.plan``; ``CapeError`` naming the field where its seeds
         do not cover its draws."""
         draws = {str(k): int(v) for k, v in plan["draws"].items()}
+        reused = frozenset((str(m), int(r)) for m, r in plan.get("reused") or ())
         try:
-            return cls(draws, tuple(int(n) for n in plan["seeds"]))
+            return cls(draws, tuple(int(n) for n in plan["seeds"]), reused)
         except ValueError as exc:
             raise CapeError(
                 f"{source}: field `question.plan.seeds` must give every draw up to "
@@ -253,11 +260,12 @@ class Plan:
 def stage_runs(settings: QuestionSettings, plan: Plan) -> list[RunId]:
     """Every run a stage's rows read: each model's draws inside each NMPC on the ground-truth
     plant, at every η, on the draw's own seeds (``QuestionSettings.draw_seeds``; the study's
-    folder names: ``RunId``)."""
+    folder names: ``RunId``); none of a draw the plan reuses from a published question."""
     return [
         RunId(settings.study, TRUTH, model, controller, eta, seed, replicate)
         for model, draws in plan.draws.items()
         for replicate in range(draws)
+        if (model, replicate) not in plan.reused
         for controller in NMPCS
         for eta in settings.etas
         for seed in settings.draw_seeds(replicate, plan.seeds_of(replicate))

@@ -28,17 +28,29 @@ from cape.study.question_plan import QuestionSettings
 from cape.study.question_report import draw_meta, looks_frame
 from cape.study.question_state import QuestionState
 
-COPIED = (
-    "RESULTS.md",
-    "looks.csv",
-    "looks.json",
-    "values.csv",
-    "variance_components.csv",
-    "figures/fig15_question_looks.png",
-    "tables/table10_question.md",
-    "tables/table10_question.csv",
-)
-"""What a published question holds, as paths under results/question/ (and the folder)."""
+COPIED = ("RESULTS.md", "looks.csv", "looks.json", "values.csv", "variance_components.csv")
+"""What a published question copies from results/question/ (the same names in the folder)."""
+DRAWN = ("figures/fig15_question_looks.png", "tables/table10_question.md",
+         "tables/table10_question.csv")  # fmt: skip
+"""What it draws from the looks it copies (figure 15, table 10), so they are of that look."""
+
+
+def draw(folder: Path) -> None:
+    """Figure 15 (PNG) and table 10 (CSV, Markdown) of ``folder``'s looks.csv, as the
+    question's notebook draws them."""
+    from cape.plots.question import question_looks
+    from cape.plots.style import PNG_DPI, save_figure
+    from cape.storage.tables import number_formats, write_table
+    from cape.study.question_report import final_rows
+
+    looks = pd.read_csv(folder / "looks.csv")
+    (folder / "figures").mkdir(parents=True, exist_ok=True)
+    save_figure(question_looks(looks), str(folder / DRAWN[0]), dpi=PNG_DPI)
+    table = final_rows(looks)
+    write_table(table, [str(folder / DRAWN[2]), str(folder / DRAWN[1])],
+                formats=number_formats(table))  # fmt: skip
+
+
 REQUIRED = ("looks.csv", "looks.json", "values.csv")
 NUMERIC = ("estimate", "se", "low", "high", "equivalence_low", "equivalence_high", "chance")
 TOLERANCE = 1e-9
@@ -187,3 +199,45 @@ def differences(derived: pd.DataFrame, published: pd.DataFrame) -> list[str]:
             if not math.isclose(x, y, rel_tol=TOLERANCE, abs_tol=1e-12):
                 out.append(f"{where}: {column} published {y!r}, re-derived {x!r}")
     return out
+
+
+class Published:
+    """A published question to continue from (``cape question --reuse``): its record, and
+    its values per claim and (model, draw). A draw is reused when the folder holds every claim's
+    values of it on exactly the seeds the plan gives it."""
+
+    def __init__(self, folder: Path, design: Mapping[str, Any]) -> None:
+        from cape.study.question_state import changed_keys
+
+        self.folder = folder
+        self.state, values, _ = read_folder(folder)
+        if self.state.design != design:
+            key, was, now = changed_keys(self.state.design, design)[0]
+            raise CapeError(
+                f"{folder / 'looks.json'}: published under another design (`{key}` was "
+                f"{json.dumps(was)}, now {json.dumps(now)}); only the same question's draws "
+                "can be reused"
+            )
+        self.values = values_from_frame(values)
+
+    def covers(self, model: str, draw: int, seeds: range, claims: list[str]) -> bool:
+        """Whether every claim has this draw's values on exactly ``seeds``."""
+        for claim in claims:
+            series = self.values.get(claim, {}).get((model, draw))
+            if series is None or list(series.index) != list(seeds):
+                return False
+        return True
+
+    def merge(self, values: dict[str, Any], reused: frozenset[tuple[str, int]]) -> dict:
+        """``values`` with the reused draws' published values in."""
+        for claim, per in self.values.items():
+            target = dict(values.get(claim, {}))
+            for key in reused:
+                if key in per:
+                    target[key] = per[key]
+            values[claim] = target
+        return values
+
+    def stage(self, k: int) -> dict[str, Any] | None:
+        """The published record of stage ``k`` (0-based), if it has one."""
+        return self.state.looks[k] if k < len(self.state.looks) else None

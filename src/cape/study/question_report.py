@@ -39,13 +39,16 @@ def draw_meta(model: str, replicate: int) -> dict[str, Any]:
     return read_json(path, "a draw's metadata", "delete the draw's folder and run again")
 
 
-def read_stage_runs(settings: QuestionSettings, plan: Plan) -> pd.DataFrame:
+def read_stage_runs(settings: QuestionSettings, plan: Plan) -> pd.DataFrame | None:
     """The stage's runs (``cape.study.aggregate.collect_runs``, each checked against the
     networks of its draw), less those of a draw whose training failed (a model that reached
-    its cap: the stand-in is no draw of its recipe)."""
+    its cap: the stand-in is no draw of its recipe); None where the stage runs nothing (its
+    draws all reused from a published question)."""
     from cape.study.aggregate import collect_runs
 
     runs = stage_runs(settings, plan)
+    if not runs:  # every draw reused from a published question
+        return None
     pairs = [(run.study, run.folder() / paths.METRICS, None, run.replicate) for run in runs]
     frame = collect_runs(pairs, (settings.study,), paths.MODELS)
     untrained = {
