@@ -111,8 +111,8 @@ def draw_values(runs: pd.DataFrame, row: Row, draws: int) -> list[float]:
 @dataclass(frozen=True)
 class Spread:
     """A row's draws × seeds structure at a look: σ²_between draws, σ²_within a draw (pooled
-    over its seeds), the mean of 1/seeds over its draws, and the variance of its draws' mean
-    effects (the t-test's)."""
+    over its seeds; NaN where no draw has two seeds), the mean of 1/seeds over its draws, and
+    the variance of its draws' mean effects (the t-test's)."""
 
     between: float
     within: float
@@ -127,22 +127,28 @@ class Spread:
         between, within = components(sums, squares, counts)
         means = sums / counts
         variance = float(means.var(ddof=1)) if means.size > 1 else 0.0
+        if not (counts > 1).any():  # no draw has two seeds: the seeds' spread is not measured
+            within = math.nan
         return cls(float(between), float(within), float((1 / counts).mean()), variance)
 
     @property
     def floor(self) -> float:
-        """The least variance a draw's effect has: its seeds' (``sequential.decide``)."""
-        return self.within * self.inverse_seeds
+        """The least variance a draw's effect has: its seeds' (``sequential.decide``; 0 where
+        no draw has two seeds to measure them)."""
+        return 0.0 if math.isnan(self.within) else self.within * self.inverse_seeds
 
     @property
     def seeds_share(self) -> float:
         """The share of a draw's effect variance its seeds make: σ²_w·mean(1/S) over that plus
         σ²_b (1: the draws differ by their seeds alone; NaN: no spread at all)."""
         total = self.between + self.floor
-        return self.floor / total if total > 0 else math.nan
+        return self.floor / total if total > 0 and not math.isnan(self.within) else math.nan
 
     def later(self, seeds: int) -> float:
-        """The variance of a further draw's effect on ``seeds`` seeds."""
+        """The variance of a further draw's effect on ``seeds`` seeds (the draws' own variance
+        where the seeds' is not measured)."""
+        if math.isnan(self.within):
+            return self.variance
         return self.between + self.within / seeds
 
 
