@@ -15,7 +15,6 @@ import json
 import math
 import os
 import platform
-import subprocess
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -26,7 +25,7 @@ from cape.errors import CapeError
 from cape.study.question import RowState, evaluate, values_from_frame
 from cape.study.question_plan import QuestionSettings
 from cape.study.question_report import draw_meta, looks_frame
-from cape.study.question_state import QuestionState
+from cape.study.question_state import QuestionState, commit
 
 COPIED = ("RESULTS.md", "looks.csv", "looks.json", "values.csv", "variance_components.csv")
 """What a published question copies from results/question/ (the same names in the folder)."""
@@ -58,19 +57,6 @@ TOLERANCE = 1e-9
 floating-point path); decisions must be equal."""
 
 
-def _commit() -> str | None:
-    from cape.config import REPO_ROOT
-
-    try:
-        head = subprocess.run(["git", "-C", str(REPO_ROOT), "rev-parse", "HEAD"],
-                              capture_output=True, text=True, timeout=10, check=True)  # fmt: skip
-        dirty = subprocess.run(["git", "-C", str(REPO_ROOT), "status", "--porcelain", "src"],
-                               capture_output=True, text=True, timeout=10, check=True)  # fmt: skip
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return head.stdout.strip() + (" (src modified)" if dirty.stdout.strip() else "")
-
-
 def _cpu_model() -> str:
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -90,11 +76,12 @@ def provenance(config: Mapping[str, Any], state: QuestionState) -> dict[str, Any
     draws: dict[str, list[dict[str, Any]]] = {}
     for model, count in (last.get("draws") or {}).items():
         for r in range(int(count)):
-            meta = draw_meta(model, r).get("draw", {})
+            full = draw_meta(model, r)
+            meta = full.get("draw", {})
             draws.setdefault(model, []).append(
                 {
                     "draw": r,
-                    "training seed": meta.get("seed"),
+                    "training seed": full.get("seed"),
                     "trained": meta.get("trained"),
                     "trainings tried": [
                         {"seed": t.get("seed"), "trained": t.get("trained")}
@@ -114,11 +101,12 @@ def provenance(config: Mapping[str, Any], state: QuestionState) -> dict[str, Any
             "wall_s": line.get("wall_s"),
             "trainings tried": line.get("trainings tried"),
             "trainings failed": line.get("trainings failed"),
+            "run by commit": line.get("commit", "not recorded (before CAPE recorded it)"),
         }
         for line in state.looks
     ]
     return {
-        "commit": _commit(),
+        "published by commit": commit(),
         "config_sha256": digest,
         "machine": {
             "cpu": _cpu_model(),

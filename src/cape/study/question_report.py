@@ -16,6 +16,7 @@ from cape.layout.names import replicate_name
 from cape.study.claims import NMPCS
 from cape.study.question import RowState
 from cape.study.question_plan import Plan, QuestionSettings, stage_runs
+from cape.study.question_state import commit
 from cape.study.sequential import (
     CONTRADICTED,
     EQUIVALENT,
@@ -200,6 +201,7 @@ def stage_record(
         "draws": dict(draws),
         "seeds": list(seeds),
         "most seeds": most,
+        "commit": commit(),
         "cpu by model": {
             m: round(sum(cost.trainings.get(m, [])) + cost.solvers.get(m, 0.0), 1) for m in draws
         },

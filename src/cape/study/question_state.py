@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import subprocess
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,6 +21,20 @@ from cape.errors import CapeError
 from cape.layout import paths
 
 FORMAT = "cape-question/2"
+
+
+def commit() -> str | None:
+    """The checkout's commit (``(src modified)`` where src/ differs from it), or None."""
+    from cape.config import REPO_ROOT
+
+    try:
+        head = subprocess.run(["git", "-C", str(REPO_ROOT), "rev-parse", "HEAD"],
+                              capture_output=True, text=True, timeout=10, check=True)  # fmt: skip
+        dirty = subprocess.run(["git", "-C", str(REPO_ROOT), "status", "--porcelain", "src"],
+                               capture_output=True, text=True, timeout=10, check=True)  # fmt: skip
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return head.stdout.strip() + (" (src modified)" if dirty.stdout.strip() else "")
 
 
 def _aside() -> str:
