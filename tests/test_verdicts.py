@@ -475,13 +475,3 @@ def test_a_row_inside_its_margin_is_equivalent_by_statsmodels_tost() -> None:
     assert recipe({"train": {"lr": 1.44e-4, "batch_size": 2, "epochs": 400}}) == (
         "Adam lr 0.000144, batch 2, 400 epochs"
     )
-
-
-def test_an_overflowing_effect_is_refused_not_summarised() -> None:
-    """{draw 0: 1e308, draw 1: −1e308}: a mean of 0 and an interval of ±inf would be a silent
-    wrong answer (issue 61); the function refuses it, naming the value."""
-    from cape.study.verdicts import interval
-
-    with pytest.raises(ValueError, match=r"1e\+308 cannot be summarised"):
-        interval({0: [1e308], 1: [-1e308]})
-    assert interval({0: [1.0, float("inf")], 1: [3.0]}).estimate == 2.0  # non-finite left out

@@ -91,26 +91,15 @@ def _no_spread(x: np.ndarray) -> bool:
     return bool(np.ptp(x) <= 1e-12 * max(1.0, float(np.abs(x).max())))
 
 
-OVERFLOW = 1e150
-"""Effects beyond this magnitude overflow a variance: ``interval`` refuses them."""
-
-
 def interval(effects: Mapping[int, Sequence[float]], level: float = 0.95) -> Interval:
     """The effect's estimate and its ``level`` interval (``effects``: replicate → the effect's
     values, one per seed or one for the draw): Student's t over the draws' means with two or
     more draws, over the seeds with one; NaN without values; a point, with ``why``, from one
-    value or values that do not vary. Non-finite values are left out; ``ValueError`` for a
-    value beyond ``OVERFLOW``."""
+    value or values that do not vary."""
     groups = _groups(effects)
     values = sum(g.size for g in groups)
     if not groups:
         return Interval(math.nan, math.nan, math.nan, 0, 0, NONE, why="no values")
-    largest = max(float(np.abs(g).max()) for g in groups)
-    if largest > OVERFLOW:
-        raise ValueError(
-            f"an effect of magnitude {largest:.3g} cannot be summarised (its squares overflow); "
-            "screen such values before taking an interval"
-        )
     if len(groups) >= 2:
         x, unit = np.array([g.mean() for g in groups]), DRAWS
     else:
