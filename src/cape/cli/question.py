@@ -404,7 +404,7 @@ def _publish(args: argparse.Namespace, folder: Path) -> None:
         )
     files = [*DEFAULT_FILES[: 1 if args.no_question_config else 2], *args.configfile]
     config = merged_config(files)
-    state = QuestionState._parse(json.loads((source / "looks.json").read_text()))
+    state = QuestionState.parse(json.loads((source / "looks.json").read_text()))
     names = [n for n in publish.COPIED if n not in missing]
     _claim(args, *(Output(folder / n, "published question", option="--publish") for n in
                    [*names, *publish.DRAWN, paths.QUESTION_PROVENANCE]))  # fmt: skip

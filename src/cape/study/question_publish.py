@@ -131,7 +131,7 @@ def read_folder(folder: Path) -> tuple[QuestionState, pd.DataFrame, pd.DataFrame
                 "(`cape question --publish` writes them)"
             )
     try:
-        state = QuestionState._parse(json.loads((folder / "looks.json").read_text()))
+        state = QuestionState.parse(json.loads((folder / "looks.json").read_text()))
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise CapeError(f"{folder / 'looks.json'}: not a question's record ({exc!r})") from exc
     try:

@@ -90,7 +90,7 @@ class QuestionState:
                 f"CHANGELOG); its looks were taken on other runs: {_aside()}"
             )
         try:
-            recorded = cls._parse(state)
+            recorded = cls.parse(state)
         except (KeyError, TypeError, ValueError) as exc:
             raise CapeError(
                 f"{path}: a field is missing or of the wrong type ({exc!r}); restore the file "
@@ -108,7 +108,9 @@ class QuestionState:
         return recorded
 
     @classmethod
-    def _parse(cls, state: dict[str, Any]) -> QuestionState:
+    def parse(cls, state: dict[str, Any]) -> QuestionState:
+        """A record from looks.json's parsed JSON; KeyError, TypeError or ValueError where a
+        field is missing or of the wrong type (``read`` turns them into one line)."""
         design = state["design"]
         seeds = [int(n) for n in state["seeds"]]
         looks = list(state["looks"])
