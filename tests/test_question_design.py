@@ -99,3 +99,26 @@ def test_a_record_with_no_look_takes_the_new_design() -> None:
     state = QuestionState.read({"alpha": 0.1}, path="/nonexistent/looks.json")
     assert state.design == {"alpha": 0.1} and not state.looks
     assert json.loads(state.as_json())["format"] == FORMAT
+
+
+def test_a_resumed_trainings_cpu_counts_every_part(tmp_path: Path, monkeypatch) -> None:
+    """A training's CPU is what its meta.json records over every resume; a training recorded
+    before that is scaled up from its benchmark's last part by its whole wall time, never
+    counted as that last part alone (the first stage's DDM trainings read ~30 % low so)."""
+    from cape.layout import paths
+    from cape.study.question_report import training_cpu
+
+    monkeypatch.chdir(tmp_path)
+    tsv = Path(paths.benchmark("train", "ddm", "seed0.tsv"))
+    tsv.parent.mkdir(parents=True)
+    tsv.write_text("s\th:m:s\tcpu_time\n1000.0\t0:16:40\t400.0\n")  # the last part only
+    assert training_cpu("ddm", 0, tsv) == 400.0  # no meta.json: the benchmark alone
+    meta = Path(paths.training_dir("ddm", 0)) / "meta.json"
+    meta.parent.mkdir(parents=True)
+    meta.write_text(json.dumps({"wall_seconds": 2500.0}))  # resumed: 2.5 × the last part
+    assert training_cpu("ddm", 0, tsv) == pytest.approx(1000.0)
+    meta.write_text(json.dumps({"wall_seconds": 2500.0, "cpu_seconds": 1234.5}))
+    assert training_cpu("ddm", 0, tsv) == 1234.5  # recorded over every part: taken as is
+    meta.write_text(json.dumps({"wall_seconds": 900.0, "cpu_seconds": None}))
+    assert training_cpu("ddm", 0, tsv) == 400.0  # not resumed: the benchmark's own
+    assert training_cpu("ddm", 1, tsv.with_name("seed1.tsv")) is None  # neither file

@@ -464,6 +464,11 @@ def test_a_killed_training_resumes_to_the_same_bytes(
     for name in ("model.pt", "loss.csv"):
         assert (killed / name).read_bytes() == (tmp_path / "whole" / name).read_bytes(), name
     assert _epoch_of(checkpoint) == 10  # kept, at the last epoch
+    import torch
+
+    before = torch.load(saved, weights_only=True)["cpu_seconds"]  # the killed part's CPU
+    after = json.loads((killed / "meta.json").read_text())["cpu_seconds"]
+    assert 0 < before < after  # every part counted, not only the last
 
     # the outputs deleted, as Snakemake deletes a job's outputs it had not recorded as done:
     # the rerun rewrites them from the kept checkpoint, without training again

@@ -191,15 +191,16 @@ rule notebook_failures:
 rule notebook_scorecard:
     """Table 8 of a scope: the paper's headline claims beside ours, with three-valued verdicts
     per training replicate and pooled (from the config's paper study), the claims' effects
-    figure, tables 4 and 1 over the replicates, and RESULTS.md."""
+    figure, tables 4 and 1 over the replicates, and RESULTS.md; tables 8 and 9 computed from the
+    scope's evidence folder, which it writes first (they re-derive from it alone)."""
     input:
         unpack(W.scorecard_inputs),
         notebook=f"{NOTEBOOKS}/scorecard.ipynb",
         runs=paths.STUDY_RUNS,
-        summary=paths.study_summary(),
         raceline=W.raceline_path(),
     output:
         report(paths.scoped("{scope}", "tables", "table08_scorecard.md"), caption="../report/scorecard.rst", category="Claims"),
+        *(paths.evidence("{scope}", name) for name in paths.EVIDENCE_FILES),
         multiext(paths.scoped("{scope}", "tables", "table08_scorecard"), ".csv", ".tex"),
         *(paths.scoped("{scope}", "tables", f"{name}{ext}") for name in WHOLE_STUDY_NOTEBOOKS["scorecard"].tables if name != "table08_scorecard" for ext in TABLE_EXTS),
         *reported_figures("scorecard", paths.scoped("{scope}", "figures"), "../report/scorecard.rst", "Claims"),
@@ -212,12 +213,12 @@ rule notebook_scorecard:
             "notebook_scorecard",
             spec=W.notebook_spec("scorecard"),
             runs_path=input.runs,
-            summary_path=input.summary,
             raceline=input.raceline,
             replicates=SCOPES[wildcards.scope],
             complexity_paths=input.complexity,
             openloop_paths=input.openloop,
             model_root=paths.MODELS,  # the draws' meta.json and loss.csv: input.models
+            evidence_dir=paths.evidence(wildcards.scope),
             table_dir=paths.scoped(wildcards.scope, "tables"),
             figure_dir=paths.scoped(wildcards.scope, "figures"),
             glance_path=paths.glance(wildcards.scope),

@@ -1,4 +1,5 @@
-"""``cape aggregate``: every run's metrics in one table and the per-cell summaries (SPEC §8–§9).
+"""``cape aggregate``: every run's metrics in one table and the per-cell summaries (SPEC §8–§9);
+``cape replicates``: the replicated study's tables 8 and 9 published, or re-derived.
 
 Each command's arguments are defined right above it (``@command``)."""
 
@@ -15,6 +16,7 @@ from cape.cli.common import (
     _config,
     command,
 )
+from cape.errors import CapeError
 from cape.layout import paths
 
 
@@ -91,3 +93,66 @@ def _made_from_runs(pairs: list[tuple[Any, ...]], spec: Any, models_root: str | 
     lines += [digest(spec), str(models_root)]
     made = hashlib.sha256("\n".join(lines).encode()).hexdigest()[:16]
     return f"of {len(pairs)} runs [{made}]"
+
+
+def _replicates_arguments(p: argparse.ArgumentParser) -> None:
+    action = p.add_mutually_exclusive_group(required=True)
+    action.add_argument(
+        "--publish",
+        metavar="FOLDER",
+        help="copy the replicated study's tables 8 and 9, RESULTS.md, figures 13–14 and its "
+        "evidence into FOLDER, with provenance.json (e.g. docs/results/replicates)",
+    )
+    action.add_argument(
+        "--from",
+        dest="source",
+        metavar="FOLDER",
+        help="re-derive tables 8 and 9 from a published FOLDER's evidence alone and compare "
+        "them with its tables",
+    )
+    p.add_argument(
+        "--scope",
+        default=paths.REPLICATES_SCOPE,
+        help="the scope to publish (%(default)s; results/ for the default target's draw 0)",
+    )
+    p.add_argument(
+        "--configfile",
+        nargs="+",
+        default=[],
+        metavar="FILE",
+        help="config files over config/config.yaml, as given to snakemake (for the provenance)",
+    )
+
+
+@command(
+    "replicates",
+    "publish the replicated study's claims and leaderboard, or re-derive a published one",
+    _replicates_arguments,
+)
+def cmd_replicates(args: argparse.Namespace) -> None:
+    from cape.study import study_publish as publish
+
+    if args.source:
+        folder = Path(args.source)
+        derived = publish.rederive(folder)
+        wrong = publish.differences(folder, derived)
+        if wrong:
+            raise CapeError(
+                f"{folder}: the re-derivation from evidence/ differs in {len(wrong)} place(s), "
+                f"first {wrong[0]}; the published data do not give the published tables"
+            )
+        rows = ", ".join(f"{Path(name).name} {len(t)} rows" for name, t in derived.items())
+        print(f"cape replicates --from {folder}: {rows} re-derived from evidence/; every "
+              f"verdict equal, numbers within {publish.NUMERIC_TOLERANCE:g}")  # fmt: skip
+        return
+    from cape.cli.question import merged_config
+    from cape.config import DEFAULT_CONFIG
+    from cape.storage.ownership import Output
+
+    folder = Path(args.publish)
+    config = merged_config([str(DEFAULT_CONFIG), *args.configfile])
+    names = [*publish.COPIED, paths.STUDY_PROVENANCE]
+    _claim(args, *(Output(folder / n, "published study", option="--publish") for n in names))
+    written = publish.publish(args.scope, folder, config)
+    print(f"cape replicates --publish: {len(written)} files in {folder}; check them with "
+          f"`cape replicates --from {folder}`")  # fmt: skip

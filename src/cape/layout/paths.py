@@ -74,6 +74,13 @@ REPLICATES_SCOPE = _under("replicates")
 STUDY_RUNS = f"{{scope}}/study/{RUNS_TABLE}"
 STUDY_SUMMARY = f"{{scope}}/study/{SUMMARY_TABLE}"
 GLANCE = "{scope}/RESULTS.md"
+EVIDENCE = "{scope}/evidence"
+"""A scope's tables 8 and 9 re-derive from this folder alone (cape.study.scorecard_data)."""
+EVIDENCE_FILES = ("values.csv", "draw_tables.csv", "draws.json", "evidence.json")
+"""Its files: every run's values the tables read, tables 1 and 4 per draw, each draw's training
+record (meta.json), and the settings and measured numbers the tables read."""
+STUDY_PROVENANCE = "provenance.json"
+"""A published study's provenance (`cape replicates --publish`), beside its copies."""
 QUESTION = _under("question")
 """The ground-truth question in stages (`cape question`): its stage plan, looks and report."""
 QUESTION_STAGE = f"{QUESTION}/stage.yaml"
@@ -132,6 +139,12 @@ def study_summary(scope: str = DEFAULT_SCOPE) -> str:
 
 def glance(scope: str = DEFAULT_SCOPE) -> str:
     return GLANCE.format(scope=scope)
+
+
+def evidence(scope: str = DEFAULT_SCOPE, name: str = "") -> str:
+    """A scope's evidence folder, or its file ``name`` (one of ``EVIDENCE_FILES``)."""
+    folder = EVIDENCE.format(scope=scope)
+    return f"{folder}/{name}" if name else folder
 
 
 def scoped(scope: str, kind: str, *parts: str) -> str:

@@ -62,6 +62,9 @@ class TrainingResult:
     best_epoch: int = 0
     best_val_loss: float = float("inf")
     wall_seconds: float = 0.0
+    cpu_seconds: float | None = None
+    """The process CPU seconds of every part of the training, resumes included (None: a part
+    ran before this was recorded)."""
     resumed_from: int = 0
     """The epoch a checkpoint had completed when this training resumed from it (0: none)."""
     rewritten: bool = False
@@ -70,7 +73,8 @@ class TrainingResult:
 
 CHECKPOINT_KEYS = ("model", "optimiser", "generator", "rng", "best_state", "losses",
                    "best_epoch", "best_val_loss", "wall_seconds")  # fmt: skip
-"""What a resumed training reads from its checkpoint."""
+"""What a resumed training reads from its checkpoint (and ``cpu_seconds`` where there: a
+checkpoint written before CPU was recorded lacks it, and resumes without it)."""
 
 
 @dataclass(frozen=True)
@@ -170,7 +174,9 @@ def train_model(
     result = TrainingResult(model=model)
     best_state: dict[str, torch.Tensor] | None = None
     start = time.perf_counter()
+    cpu_start = time.process_time()
     earlier = 0.0  # wall seconds spent before a resume
+    earlier_cpu: float | None = 0.0  # CPU seconds spent before a resume (None: not recorded)
     state = checkpoint.load() if checkpoint is not None else None
     finished: tuple[float, int] | None = None  # the record of a training already finished
     if state is not None:
@@ -182,9 +188,11 @@ def train_model(
         result.losses = list(state["losses"])
         result.best_epoch, result.best_val_loss = state["best_epoch"], state["best_val_loss"]
         result.resumed_from, earlier = len(result.losses), float(state["wall_seconds"])
+        earlier_cpu = _seconds(state.get("cpu_seconds"))
         done = state.get("finished")
         if isinstance(done, dict) and result.resumed_from >= n_epochs:
             finished = (float(done["wall_seconds"]), int(done["resumed_from"]))
+            result.cpu_seconds = _seconds(done.get("cpu_seconds"))
     saved = time.perf_counter()
     bar = tqdm(
         range(result.resumed_from + 1, n_epochs + 1),
@@ -198,6 +206,9 @@ def train_model(
     )
     batches = PaddedBatches(batch)
 
+    def cpu_so_far() -> float | None:
+        return None if earlier_cpu is None else earlier_cpu + time.process_time() - cpu_start
+
     def resumable(wall_seconds: float) -> dict[str, Any]:
         """What the next epoch depends on (``CHECKPOINT_KEYS``), as a checkpoint holds it."""
         return {
@@ -210,6 +221,7 @@ def train_model(
             "best_epoch": result.best_epoch,
             "best_val_loss": result.best_val_loss,
             "wall_seconds": wall_seconds,
+            "cpu_seconds": cpu_so_far(),
         }
 
     for epoch in bar:
@@ -248,10 +260,20 @@ def train_model(
         result.rewritten = True
         return result
     result.wall_seconds = earlier + time.perf_counter() - start
+    result.cpu_seconds = cpu_so_far()
     if checkpoint is not None:  # kept: a rerun after a crash rewrites the outputs from it
-        finished_record = {"wall_seconds": result.wall_seconds, "resumed_from": result.resumed_from}
+        finished_record = {
+            "wall_seconds": result.wall_seconds,
+            "cpu_seconds": result.cpu_seconds,
+            "resumed_from": result.resumed_from,
+        }
         checkpoint.save({**resumable(result.wall_seconds), "finished": finished_record})
     return result
+
+
+def _seconds(value: object) -> float | None:
+    """A checkpoint's recorded seconds, None where an older checkpoint has none."""
+    return float(value) if isinstance(value, (int, float)) else None
 
 
 class AdamStep:

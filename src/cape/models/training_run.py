@@ -142,12 +142,14 @@ def planned_identity(
 
 
 def _outcome(result: TrainingResult) -> dict[str, Any]:
-    """What a training did: its epochs, its kept checkpoint and its wall time (meta.json)."""
+    """What a training did: its epochs, its kept checkpoint, its wall time and its process CPU
+    seconds over every resume (meta.json; null where a part ran before CPU was recorded)."""
     return {
         "epochs": len(result.losses),
         "best_epoch": result.best_epoch,
         "best_val_loss": result.best_val_loss,
         "wall_seconds": result.wall_seconds,
+        "cpu_seconds": result.cpu_seconds,
     }
 
 

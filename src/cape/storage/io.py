@@ -206,15 +206,21 @@ def read_csv(
     columns: Collection[str] = (),
     sep: str = ",",
     rows: bool = False,
+    text: Collection[str] = (),
 ) -> Any:
     """``pandas.read_csv(path, sep=sep)``, or one ``CapeError`` naming the file: ``missing``
     (its fix) when it does not exist, ``damaged`` (what it is not, and the fix; ``{reason}``
     is replaced by pandas' reason) when pandas cannot read it, lacks one of ``columns``, or
-    (``rows``) has no rows."""
+    (``rows``) has no rows. ``text``: columns read as strings (a label such as "2.5" stays a
+    label)."""
     import pandas as pd
 
     try:
-        frame = pd.read_csv(path, sep=sep)
+        frame = pd.read_csv(
+            path,
+            sep=sep,
+            dtype=dict.fromkeys(text, str) or None,
+        )
     except FileNotFoundError:
         raise CapeError(f"{path}: missing; {missing}") from None
     except IsADirectoryError:

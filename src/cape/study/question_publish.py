@@ -15,7 +15,7 @@ import json
 import math
 import os
 import platform
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -67,31 +67,41 @@ def _cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
+def config_digest(config: Mapping[str, Any]) -> str:
+    """The SHA-256 of the config as canonical JSON (sorted keys)."""
+    return hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def machine() -> dict[str, Any]:
+    """The CPU model, its cores and the Python version that made a published result."""
+    return {"cpu": _cpu_model(), "cores": os.cpu_count(), "python": platform.python_version()}
+
+
+def draw_record(r: int, meta: Mapping[str, Any], seeds: Iterable[int]) -> dict[str, Any]:
+    """A draw's line of a provenance file, from its meta.json: its training seed, whether it
+    trained, the trainings it was chosen among, and its disturbance seeds."""
+    draw = meta.get("draw") or {}
+    return {
+        "draw": r,
+        "training seed": meta.get("seed"),
+        "trained": draw.get("trained"),
+        "trainings tried": [
+            {"seed": t.get("seed"), "trained": t.get("trained")} for t in draw.get("trainings", [])
+        ],
+        "disturbance seeds": list(seeds),
+    }
+
+
 def provenance(config: Mapping[str, Any], state: QuestionState) -> dict[str, Any]:
     """What made a question's answer: commit, config digest, machine, each model's draws with
     their training seeds (failed ones too) and disturbance seeds, and every stage's cost."""
     settings = QuestionSettings.from_identity(state.design)
-    digest = hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()
     last = state.looks[-1] if state.looks else {}
     draws: dict[str, list[dict[str, Any]]] = {}
     for model, count in (last.get("draws") or {}).items():
         for r in range(int(count)):
-            full = draw_meta(model, r)
-            meta = full.get("draw", {})
-            draws.setdefault(model, []).append(
-                {
-                    "draw": r,
-                    "training seed": full.get("seed"),
-                    "trained": meta.get("trained"),
-                    "trainings tried": [
-                        {"seed": t.get("seed"), "trained": t.get("trained")}
-                        for t in meta.get("trainings", [])
-                    ],
-                    "disturbance seeds": list(
-                        settings.draw_seeds(r, state.seeds[r]) if r < len(state.seeds) else []
-                    ),
-                }
-            )
+            seeds = settings.draw_seeds(r, state.seeds[r]) if r < len(state.seeds) else []
+            draws.setdefault(model, []).append(draw_record(r, draw_meta(model, r), seeds))
     stages = [
         {
             "stage": line.get("stage"),
@@ -107,12 +117,8 @@ def provenance(config: Mapping[str, Any], state: QuestionState) -> dict[str, Any
     ]
     return {
         "published by commit": commit(),
-        "config_sha256": digest,
-        "machine": {
-            "cpu": _cpu_model(),
-            "cores": os.cpu_count(),
-            "python": platform.python_version(),
-        },
+        "config_sha256": config_digest(config),
+        "machine": machine(),
         "design": state.design,
         "draws": draws,
         "stages": stages,

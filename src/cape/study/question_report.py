@@ -133,6 +133,32 @@ def _cpu(path: Path) -> float | None:
     return value if math.isfinite(value) else float(row["s"])
 
 
+def training_cpu(model: str, seed: int, tsv: Path) -> float | None:
+    """A training's CPU seconds over all its parts: the ``cpu_seconds`` its meta.json records;
+    for a training run before that was recorded, the benchmark's ``cpu_time``, which covers
+    only the last part of a resumed training, scaled up by the training's whole wall time over
+    that part's. None: neither file is there."""
+    from cape.errors import CapeError
+    from cape.storage.io import read_benchmark, read_json
+
+    meta_path = Path(paths.training_dir(model, seed)) / "meta.json"
+    try:
+        meta = read_json(meta_path, "a training's meta.json", "its training reruns it")
+    except CapeError:
+        meta = {}
+    recorded = meta.get("cpu_seconds")
+    if isinstance(recorded, (int, float)) and math.isfinite(recorded):
+        return float(recorded)
+    last = _cpu(tsv)
+    if last is None:
+        return None
+    part_wall = float(read_benchmark(tsv).iloc[0]["s"])
+    whole_wall = meta.get("wall_seconds")
+    if isinstance(whole_wall, (int, float)) and part_wall > 0 and whole_wall > part_wall:
+        return last * float(whole_wall) / part_wall
+    return last
+
+
 def costs(settings: QuestionSettings, plan: Plan) -> Cost:
     """What the question's draws and the stage's runs cost, from the rules' benchmark files
     (trainings, solvers: ``cpu_time``) and each run's timing.json (its phases' wall seconds,
@@ -149,7 +175,7 @@ def costs(settings: QuestionSettings, plan: Plan) -> Cost:
         spent = []
         for t in consulted:
             tsv = Path(paths.benchmark("train", model, f"seed{int(t['seed'])}.tsv"))
-            cpu = _cpu(tsv)
+            cpu = training_cpu(model, int(t["seed"]), tsv)
             if cpu is None:
                 cost.missing.append(str(tsv))
             else:
