@@ -131,7 +131,9 @@ class ScorecardData:
     def read(cls, folder: str | Path) -> ScorecardData:
         """The bundle ``write`` stored in ``folder``, or one ``CapeError`` naming the file."""
         folder = Path(folder)
-        fix = "publish the study again (cape replicates --publish FOLDER)"
+        fix = "give the evidence/ of a folder `cape replicates --publish` wrote, or publish again"
+        if not folder.is_dir():
+            raise CapeError(f"{folder}: no such folder; {fix}")
         damaged = "unreadable ({reason}); " + fix
         runs = read_csv(folder / EVIDENCE[0], fix, damaged, VALUE_COLUMNS[:9], text=LABELS)
         joined = read_csv(folder / EVIDENCE[1], fix, damaged, ("table", "draw", "columns"))
