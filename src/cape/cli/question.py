@@ -46,7 +46,13 @@ def _arguments(p: argparse.ArgumentParser) -> None:
         help="do not merge config/question.yaml (the question's models then come from the "
         "other files)",
     )
-    p.add_argument("--cores", default="2", help="Snakemake's --cores for each stage (%(default)s)")
+    p.add_argument(
+        "--cores",
+        type=CORES,
+        default=2,
+        metavar="N",
+        help="Snakemake's --cores for each stage (%(default)s)",
+    )
     p.add_argument(
         "--project-cores",
         type=CORES,
@@ -119,7 +125,7 @@ def _merge(into: dict[str, Any], other: Mapping[str, Any]) -> None:
 
 def _snakemake(
     files: Sequence[str],
-    cores: str,
+    cores: int,
     extra: Sequence[str],
     log: Path,
     what: str,
@@ -130,7 +136,7 @@ def _snakemake(
     the log."""
     cmd = [sys.executable, "-m", "snakemake", "-s", snakefile(), target, "--configfile", *files]
     if not any(a.startswith(("--cores", "-c")) for a in extra):
-        cmd += ["--cores", cores]
+        cmd += ["--cores", str(cores)]
     cmd += list(extra)
     log.parent.mkdir(parents=True, exist_ok=True)
     # appended, line by line: a resumed stage keeps its earlier attempts; `tail -f` follows it
