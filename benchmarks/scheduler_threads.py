@@ -44,6 +44,7 @@ from pathlib import Path
 from _common import json_output, run
 
 from cape.errors import CapeError
+from cape.workflow.processes import stop
 from cape.workflow.scheduler import threads_of
 
 TIMEOUT = 6 * 3600.0  # s: the default bound on one snakemake run (--timeout)
@@ -127,38 +128,6 @@ def _stopped(signum: int, _frame: object) -> None:
     raise Interrupted(signum)
 
 
-def _descendants(pid: int) -> list[int]:
-    """Every process below ``pid`` (from /proc): Snakemake starts jobs in sessions of their
-    own, so signalling its session does not reach them."""
-    parents: dict[int, list[int]] = {}
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        with contextlib.suppress(OSError, ValueError, IndexError):
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-            parents.setdefault(int(fields[1]), []).append(int(stat.parent.name))
-    found, todo = [], [pid]
-    while todo:
-        for child in parents.get(todo.pop(), []):
-            found.append(child)
-            todo.append(child)
-    return found
-
-
-def stop(proc: subprocess.Popen) -> None:
-    """Stop ``proc`` (a snakemake in its own session) and every process it started: SIGTERM,
-    then SIGKILL after ``GRACE`` s; waits at most twice that."""
-    for sig in (signal.SIGTERM, signal.SIGKILL):
-        for pid in _descendants(proc.pid):
-            with contextlib.suppress(ProcessLookupError, PermissionError):
-                os.kill(pid, sig)
-        with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.killpg(proc.pid, sig)
-        try:
-            proc.wait(timeout=GRACE)
-            return
-        except subprocess.TimeoutExpired:
-            continue
-
-
 def sample(
     label: str,
     command: Sequence[str],
@@ -203,8 +172,8 @@ def sample(
                     if c is not None:
                         cpu = c
                     time.sleep(0.2)
-            except BaseException:
-                stop(proc)
+            except BaseException:  # stopped, or past --timeout: snakemake and its jobs with it
+                stop(proc, GRACE)
                 raise
     finally:
         if group is not None:
@@ -230,8 +199,8 @@ def toy(jobs: int, nproc: int | None, timeout: float = TIMEOUT) -> list[Sampled]
             folder = Path(tmp)
             (folder / "Snakefile").write_text(TOY.format(bound=bound, jobs=jobs))
             command = [sys.executable, "-m", "snakemake", "--cores", "2", "--quiet", "all"]
-            result = sample(f"toy, {jobs} jobs, {label}", command, folder, nproc, folder / "log",
-                            timeout)  # fmt: skip
+            label = f"toy, {jobs} jobs, {label}"
+            result = sample(label, command, folder, nproc, folder / "log", timeout)
             if result.returncode != 0:
                 print((folder / "log").read_text()[-2000:], file=sys.stderr)
             results.append(result)

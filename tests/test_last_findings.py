@@ -324,3 +324,31 @@ def test_a_refusal_while_snakemake_loads_a_spec_is_one_line(tmp_path: Path) -> N
         assert not [line for line in out.splitlines() if line.strip().startswith('File "')], out
         assert spec.read_text() == '{"tracks": {"dir": "elsewhere"}}\n'
     assert not list((work / ".snakemake" / "locks").glob("*"))  # the folder is not left locked
+
+
+# --- a started snakemake is stopped with its jobs (cape question, scheduler_threads.py) ----------
+def test_stop_ends_a_process_and_the_jobs_it_started_in_sessions_of_their_own() -> None:
+    """``cape.workflow.processes.stop``, shared by `cape question` and
+    benchmarks/scheduler_threads.py: a parent in its own session whose child is in another
+    session (as Snakemake starts its jobs), the child ignoring SIGTERM: both end, the child by
+    SIGKILL after the grace."""
+    import time
+
+    from cape.workflow.processes import descendants, stop
+
+    proc = subprocess.Popen(
+        ["bash", "-c", "setsid bash -c 'trap \"\" TERM; sleep 60' & wait"],
+        start_new_session=True,
+    )
+    deadline = time.monotonic() + 10
+    while not descendants(proc.pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    jobs = descendants(proc.pid)
+    assert jobs, jobs  # the sleep in its own session, deaf to SIGTERM
+    start = time.monotonic()
+    stop(proc, grace=1.0)
+    assert proc.returncode is not None and time.monotonic() - start < 10
+    time.sleep(0.2)
+    left = [pid for pid in jobs if Path(f"/proc/{pid}").exists()
+            and "\nState:\tZ" not in Path(f"/proc/{pid}/status").read_text()]  # fmt: skip
+    assert not left, left

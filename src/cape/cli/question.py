@@ -12,7 +12,6 @@ and looks.json, after every stage. How to read it: docs/question.md.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import re
@@ -29,6 +28,7 @@ from cape.errors import CapeError
 from cape.layout import paths
 
 DEFAULT_FILES = ("config/config.yaml", "config/question.yaml")
+STOP_GRACE = 60.0  # s: how long a stopped stage's Snakemake gets to end its jobs before SIGKILL
 
 
 def _arguments(p: argparse.ArgumentParser) -> None:
@@ -164,49 +164,16 @@ def _snakemake(
                     shown = int(done[3]) // 10
                     print(f"  {what}: {done[0]}", flush=True)
             status = proc.wait()
-        except BaseException:
-            _stop(proc)
+        except BaseException:  # stopped: Snakemake and its jobs with it, then the next run resumes
+            from cape.workflow.processes import stop
+
+            stop(proc, grace=STOP_GRACE)
             raise
     if status != 0:
         raise CapeError(
             f"{what}: Snakemake failed (exit {status}); its output, with the failed job and its "
             f"log, is in {log}. Fix that, then run `cape question` again: it resumes"
         )
-
-
-def _descendants(pid: int) -> list[int]:
-    """Every process below ``pid`` (from /proc): Snakemake starts each job in a session of its
-    own, so signalling Snakemake's session does not reach them."""
-    parents: dict[int, list[int]] = {}
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        with contextlib.suppress(OSError, ValueError, IndexError):
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-            parents.setdefault(int(fields[1]), []).append(int(stat.parent.name))
-    found, todo = [], [pid]
-    while todo:
-        for child in parents.get(todo.pop(), []):
-            found.append(child)
-            todo.append(child)
-    return found
-
-
-def _stop(proc: subprocess.Popen) -> None:
-    """Stop Snakemake and every job it started, then wait for Snakemake: a job writes
-    atomically, so what it had not finished is simply missing, and the next run redoes it."""
-    import signal
-
-    jobs = _descendants(proc.pid)  # before Snakemake ends and they are reparented
-    for pid in jobs:
-        with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.kill(pid, signal.SIGTERM)
-    with contextlib.suppress(ProcessLookupError):
-        os.killpg(proc.pid, signal.SIGTERM)
-    try:
-        proc.wait(timeout=60)
-    except subprocess.TimeoutExpired:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
 
 
 def snakefile() -> str:
