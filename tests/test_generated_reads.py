@@ -16,12 +16,8 @@ The default run draws 60 cases per reader (derandomized: the same on every machi
 30 s in all, the real commands included); ``pytest -m slow`` draws ten times as many, at
 random.
 
-``KNOWN``: the files whose exceptions the generated cases found but this change may not fix
-(src/cape/study/question*.py and sequential*.py, another engineer's, issue 61). An exception
-raised there passes a generated case for now; one raised anywhere else fails it. The cases
-found are pinned through the real command by strict xfail tests (`test_known_...`): fixed, such
-a test passes, fails as strict, and its mark goes, with the file's KNOWN entry once the
-generated cases no longer need it.
+The damage found by the first runs of these tests, which ended in a traceback, is pinned
+through the real command at the end of this file (``test_found_...``).
 """
 
 from __future__ import annotations
@@ -30,7 +26,6 @@ import json
 import re
 import shutil
 import signal
-import traceback
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -51,38 +46,6 @@ FAST = settings(max_examples=60, deadline=None, derandomize=True, database=None,
 SLOW = settings(max_examples=600, deadline=None, database=None,
                 suppress_health_check=list(HealthCheck))  # fmt: skip
 
-KNOWN = {
-    "question_state.py": "QuestionState.read and _parse: OverflowError (int() of a seed or stage "
-    "of 1e999, JSON's infinity), AttributeError (a `stopped` that is a list), IndexError (a "
-    "design that differs only by a key set to null: changed_keys names none)",
-    "question_plan.py:from_identity": "QuestionSettings.from_identity (rederive): OverflowError, "
-    "AttributeError on a damaged design",
-    "question_publish.py": "rederive and differences: KeyError (looks.csv without its `claim`, "
-    "`comparison` or `look` column), ValueError (a cell that is no number), TypeError, "
-    "OverflowError (a damaged design or look line)",
-    "question_plan.py:design": "QuestionSettings.design, reached from rederive outside its try: "
-    "ValueError on a damaged design",
-    "question_plan.py:rows": "QuestionSettings.rows, reached from rederive outside its try: "
-    "ValueError (math domain error) for a relative margin of -100 % or less",
-    "sequential.py": "the design's boundaries, reached from rederive outside its try: "
-    "ValueError (looks that do not increase), OverflowError, and no end in sight for a look at "
-    "10¹² draws (a Monte Carlo over every draw: `cape question --from` hangs)",
-    "question.py": "evaluate (rederive): TypeError on a damaged look line",
-}
-"""The files (src/cape/study/, this change's not to edit), or a function of one, an exception
-may come from without failing a generated case, for now → what the generated cases found
-there. The deepest frame in src/cape decides (``_where``)."""
-
-
-def _where(exc: BaseException) -> tuple[str, str]:
-    """The file of src/cape the exception came from, and that file with its function (its
-    deepest frame there)."""
-    frames = [f for f in traceback.extract_tb(exc.__traceback__) if "/src/cape/" in f.filename]
-    if not frames:
-        return "?", "?"
-    name = Path(frames[-1].filename).name
-    return name, f"{name}:{frames[-1].name}"
-
 
 class HungError(Exception):
     """A reader that had not answered within ``BOUND`` seconds."""
@@ -97,18 +60,14 @@ def _hung(_signum: int, _frame: Any) -> None:
 
 def holds(read: Callable[[], Any]) -> None:
     """The property: a clean result or a CapeError with a message (which every command prints
-    as one line: ``cape.errors.one_line``), within ``BOUND`` seconds; a KNOWN bug passes (its
-    cases are pinned by the strict xfail tests)."""
+    as one line: ``cape.errors.one_line``), within ``BOUND`` seconds; any other exception
+    fails the case."""
     previous = signal.signal(signal.SIGALRM, _hung)
     signal.setitimer(signal.ITIMER_REAL, BOUND)
     try:
         read()
     except CapeError as exc:
         assert str(exc).strip(), repr(exc)
-    except Exception as exc:
-        if any(place in KNOWN for place in _where(exc)):
-            return
-        raise
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, previous)
@@ -423,7 +382,14 @@ STAGE_CASES = {
     "a draw count of zero": lambda s: re.sub(r"(draws:\n\s+\w+: )\d+", r"\g<1>0", s, count=1),
     "a plan that is no mapping": lambda s: s[: s.index("  plan:")] + "  plan: 5\n",
     "truncated inside a list": lambda s: s[: s.index("- rise") + len("- ri")],
+    # the issue's "stage.yaml without first_draws" (a KeyError with frames), in today's plan
+    "a plan without its draws": lambda s: re.sub(r"    draws:\n(      .*\n)+", "", s),
+    "a plan without its seeds": lambda s: re.sub(r"    seeds:\n(    - .*\n)+", "", s),
+    # a stage of 10¹² draws: a list of every run, never finished
+    "a draw count of 10¹²": lambda s: re.sub(r"(draws:\n\s+\w+: )\d+", r"\g<1>1000000000000",
+                                             s, count=1),
 }  # fmt: skip
+"""Damage to results/question/stage.yaml, each a function of the good file's text."""
 
 
 @pytest.mark.parametrize("case", STAGE_CASES)
@@ -469,80 +435,113 @@ def test_cape_question_from_refuses_a_changed_decision_in_one_line(question: dic
         path.write_bytes(good)
 
 
-# --- the known bugs, each pinned (strict: fixed, it fails until its mark and KNOWN entry go) ------
-KNOWN_CASES = {
-    "seeds of 1e999": lambda s: {**s, "seeds": [1e999]},
-    "stopped a list": lambda s: {**s, "stopped": [1.0]},
+# --- what the generated cases found, each through the real command --------------------------------
+FOUND_LOOKS_JSON = {
+    "seeds of 1e999": lambda s: {**s, "seeds": [1e999]},  # int(inf): OverflowError
+    "stopped a list": lambda s: {**s, "stopped": [1.0]},  # .items(): AttributeError
     "a design key set to null": lambda s: {**s, "design": {**s["design"], "unknown": None}},
 }
-"""Damage to results/question/looks.json that `cape question` ends in a traceback today."""
+"""Damage to results/question/looks.json that `cape question` ended in a traceback (the last
+one an IndexError: two designs that differ only by a key set to null had no changed key)."""
 
 
-STATE_BUG = (
-    "src/cape/study/question_state.py (not this change's to edit): "
-    "QuestionState.read and _parse let OverflowError, AttributeError and IndexError out"
-)
-PUBLISH_BUG = (
-    "src/cape/study/question_publish.py (not this change's to edit): differences() "
-    "lets KeyError and ValueError out"
-)
-
-
-@pytest.mark.xfail(strict=True, reason=STATE_BUG)
-@pytest.mark.parametrize("case", KNOWN_CASES)
-def test_known_looks_json_tracebacks(question: dict, case: str) -> None:
+@pytest.mark.parametrize("case", FOUND_LOOKS_JSON)
+def test_found_looks_json_damage_is_one_line(question: dict, case: str) -> None:
     work = question["work"]
     path = work / "results" / "question" / "looks.json"
     path.parent.mkdir(parents=True, exist_ok=True)
-    text = _json(KNOWN_CASES[case](json.loads(question["looks"]))).encode()
+    text = _json(FOUND_LOOKS_JSON[case](json.loads(question["looks"]))).encode()
     path.write_bytes(text)
     try:
-        _refused_unchanged(cape("question", "--dry-run", cwd=work), path, text)
+        said = _refused_unchanged(cape("question", "--dry-run", cwd=work), path, text)
+        assert str(Path("results/question/looks.json")) in said, said
+        if case == "a design key set to null":
+            assert "`unknown` was null, now (absent)" in said, said
     finally:
         path.unlink()
 
 
-@pytest.mark.xfail(strict=True, reason=PUBLISH_BUG)
-@pytest.mark.parametrize("change", ["no claim column", "an estimate that is no number"])
-def test_known_looks_csv_tracebacks(question: dict, change: str) -> None:
-    """A looks.csv without its `claim` column, or with a number that is no number."""
+def _estimate_no_number(good: bytes) -> bytes:
+    """The first row's estimate replaced by "x" (the claim is quoted and holds commas)."""
+    header, first, *rest = good.decode().splitlines()
+    claim, fields = first.rsplit('",', 1)
+    cells = fields.split(",")
+    cells[header.split(",").index("estimate") - 1] = "x"
+    return "\n".join([header, f'{claim}",' + ",".join(cells), *rest, ""]).encode()
+
+
+def _row_twice(good: bytes) -> bytes:
+    lines = good.decode().splitlines()
+    return "\n".join([*lines, lines[1], ""]).encode()
+
+
+FOUND_LOOKS_CSV = {
+    "no claim column": (lambda good: good.replace(b"claim,", b"", 1), "lacks the column(s) claim"),
+    "an estimate that is no number": (_estimate_no_number, "`estimate` is 'x', not a number"),
+    "a row twice": (_row_twice, "is there twice"),
+}
+"""Damage to a published looks.csv that `cape question --from` ended in a KeyError or a
+ValueError (or, for a repeated row, a TypeError), with the words of its refusal now."""
+
+
+@pytest.mark.parametrize("change", FOUND_LOOKS_CSV)
+def test_found_looks_csv_damage_is_one_line(question: dict, change: str) -> None:
     folder = question["published"]
     path = folder / "looks.csv"
     good = path.read_bytes()
-    if change == "no claim column":
-        text = good.replace(b"claim,", b"", 1)
-    else:  # the first row's estimate (its 6th field from the end of the quoted claim)
-        header, first, *rest = good.decode().splitlines()
-        claim, fields = first.rsplit('",', 1)
-        cells = fields.split(",")
-        cells[header.split(",").index("estimate") - 1] = "x"
-        text = "\n".join([header, f'{claim}",' + ",".join(cells), *rest, ""]).encode()
+    damage, words = FOUND_LOOKS_CSV[change]
+    text = damage(good)
+    assert text != good
     path.write_bytes(text)
     try:
-        _refused_unchanged(cape("question", "--from", str(folder)), path, text)
+        said = _refused_unchanged(cape("question", "--from", str(folder)), path, text)
+        assert str(path) in said and words in said, said
     finally:
         path.write_bytes(good)
 
 
-HANG_BUG = (
-    "src/cape/study/question_publish.py and sequential.py (not this change's to edit): a "
-    "design's look at 10¹² draws is computed"
-)
+FOUND_DESIGNS = {
+    # a Monte Carlo over 10¹² draws per path: `cape question --from` never answered
+    "a look at 10¹² draws": (lambda d: {**d, "stages": [d["stages"][0], 10**12]},
+                             "is greater than the maximum of 200"),
+    # 100·ln(1 + m/100) of m = −100: a math domain error outside rederive's try
+    "a margin of −100 %": (lambda d: {**d, "margins": {**d["margins"], "mean_speed": -100.0}},
+                           "mean_speed"),
+    "looks that do not increase": (lambda d: {**d, "stages": [d["stages"][1], d["stages"][0]]},
+                                   "must increase"),
+    "a seed count of 1e999": (lambda d: {**d, "seeds": 1e999}, "not of its type"),
+}  # fmt: skip
+"""A published looks.json's design that `cape question --from` ended in a traceback, or never
+answered, with the words of its refusal now."""
 
 
-@pytest.mark.slow  # it waits out its bound
-@pytest.mark.xfail(strict=True, reason=HANG_BUG)
-def test_known_from_hangs_on_a_huge_look(question: dict) -> None:
-    """A published looks.json whose design looks at 10¹² draws: `cape question --from` runs a
-    Monte Carlo over every draw instead of refusing the design (here: no answer in 15 s)."""
+@pytest.mark.parametrize("case", FOUND_DESIGNS)
+def test_found_design_damage_is_refused_at_once(question: dict, case: str) -> None:
     folder = question["published"]
     path = folder / "looks.json"
     good = path.read_bytes()
     state = json.loads(good)
-    state["design"]["stages"] = [state["design"]["stages"][0], 10**12]
+    change, words = FOUND_DESIGNS[case]
+    state["design"] = change(state["design"])
     text = _json(state).encode()
     path.write_bytes(text)
     try:
-        _refused_unchanged(cape("question", "--from", str(folder), timeout=15), path, text)
+        said = _refused_unchanged(cape("question", "--from", str(folder), timeout=60), path, text)
+        assert "its design is not one `cape question` records" in said and words in said, said
     finally:
         path.write_bytes(good)
+
+
+def test_found_a_binary_configfile_is_one_line(question: dict) -> None:
+    """`cape question --configfile` of a file that is no text (here: bytes that are no UTF-8)
+    ended in a UnicodeDecodeError's traceback."""
+    work = question["work"]
+    path = work / "config" / "binary.yaml"
+    text = bytes(range(256))
+    path.write_bytes(text)
+    try:
+        said = _refused_unchanged(cape("question", "--dry-run", "--configfile", str(path),
+                                       cwd=work), path, text)  # fmt: skip
+        assert "not a text file" in said, said
+    finally:
+        path.unlink()

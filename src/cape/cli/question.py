@@ -106,7 +106,14 @@ def merged_config(files: Sequence[str]) -> dict[str, Any]:
         if not path.is_file():
             raise CapeError(f"config file {path} not found; run from the repository root")
         try:
-            loaded = yaml.safe_load(path.read_text()) or {}
+            text = path.read_text()
+        except UnicodeDecodeError:
+            raise CapeError(f"{path}: not a text file, so no YAML config; give a config file "
+                            "such as config/smoke.yaml") from None  # fmt: skip
+        except OSError as exc:
+            raise CapeError(f"{path}: cannot be read ({exc.strerror})") from None
+        try:
+            loaded = yaml.safe_load(text) or {}
         except yaml.YAMLError as exc:
             raise CapeError(f"{path}: not valid YAML ({exc})") from exc
         if not isinstance(loaded, dict):
@@ -344,14 +351,14 @@ def _rederive(folder: Path) -> None:
 
     state, values, published = publish.read_folder(folder)
     derived = publish.rederive(state, values)
-    wrong = publish.differences(derived, published)
+    wrong = publish.differences(derived, published, str(folder / "looks.csv"))
     if wrong:
         raise CapeError(
             f"{folder / 'looks.csv'}: the re-derivation from values.csv differs in {len(wrong)} "
             f"place(s), first {wrong[0]}; the published data do not give the published looks"
         )
     rows = derived[["claim", "comparison"]].drop_duplicates().shape[0]
-    exact = derived.to_csv(index=False) == (folder / "looks.csv").read_text()
+    exact = derived.to_csv(index=False).encode() == (folder / "looks.csv").read_bytes()
     print(
         f"cape question --from {folder}: {len(derived)} looks of {rows} rows re-decided from "
         f"values.csv; every decision {'and number identical to' if exact else 'equal to'} "
@@ -377,7 +384,7 @@ def _publish(args: argparse.Namespace, folder: Path) -> None:
         )
     files = [*DEFAULT_FILES[: 1 if args.no_question_config else 2], *args.configfile]
     config = merged_config(files)
-    state = QuestionState.parse(json.loads((source / "looks.json").read_text()))
+    state = QuestionState.load(source / "looks.json", "run `cape question` again: it rewrites it")
     names = [n for n in publish.COPIED if n not in missing]
     _claim(args, *(Output(folder / n, "published question", option="--publish") for n in
                    [*names, *publish.DRAWN, paths.QUESTION_PROVENANCE]))  # fmt: skip
