@@ -112,12 +112,13 @@ class Cost:
 def most_seeds(settings: QuestionSettings, cost: Cost) -> int:
     """The most seeds a later draw may get: ``question.seeds.most``, else as many as cost what
     a draw costs (its training and solvers over one seed's runs, the mean over the models), at
-    least the study's seeds and at most the seed stride."""
+    least the study's seeds and ``question.seeds.least`` (never below the least asked for:
+    issue 61), at most the seed stride."""
     if settings.most_seeds is not None:
         return settings.most_seeds
     ratio = cost.cost_ratio()
     most = settings.seeds if ratio is None else max(settings.seeds, math.floor(ratio))
-    return min(most, settings.seed_stride)
+    return min(max(most, settings.least_seeds), settings.seed_stride)
 
 
 def _cpu(path: Path) -> float | None:
