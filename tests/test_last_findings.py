@@ -8,6 +8,7 @@ in tests/test_generated_reads.py.)"""
 from __future__ import annotations
 
 import ast
+import contextlib
 import errno
 import json
 import re
@@ -36,10 +37,6 @@ ALLOWED = {
         "`rm <checkpoint>`: the resume checkpoint that `cape train` itself writes into its own "
         "--out folder while it trains (checkpoint-<fingerprint>.pt), named file by file; the "
         "command that reads it is the one that wrote it"
-    ),
-    ("cape/study/question_report.py", "draw_meta"): (
-        "a draw's folder under results/models/rep<r>/: `cape question` wrote it (its stages run "
-        "the draw rule), and the message names the draw it read"
     ),
 }
 """The messages allowed to advise removing something, each because what they name is the
@@ -264,12 +261,26 @@ def _specs(folder: Path) -> dict[str, tuple[Path, str]]:
     return out
 
 
+KINDS = ("empty", "truncated", "foreign")
+
+
+def _kinds(command: str) -> tuple[str, ...]:
+    """The spec damage tried on ``command``: all three on the rollout (the finding's command),
+    one on each other command, in turn (every command reads its spec through the same
+    ``cape.config.config_from_args``; a cape process is 2 s of CPU)."""
+    if command == "rollout":
+        return KINDS
+    return (KINDS[list(SPEC_COMMANDS).index(command) % len(KINDS)],)
+
+
 @pytest.mark.parametrize("command", SPEC_COMMANDS)
 def test_an_empty_truncated_or_foreign_spec_is_refused(tmp_path: Path, command: str) -> None:
     """Each refused in one line naming the spec, exit 2, nothing written, the spec unchanged:
     an empty one used to be ignored, and the command ran with config/config.yaml (the
     workflow's rollout compiled 4 solver libraries the smoke spec turns off)."""
     for name, (path, words) in _specs(tmp_path).items():
+        if name not in _kinds(command):
+            continue
         before = path.read_bytes()
         result = cape(command, *SPEC_COMMANDS[command], "--spec", str(path), cwd=tmp_path)
         one_message(result, f"--spec {path}", words)
@@ -352,3 +363,100 @@ def test_stop_ends_a_process_and_the_jobs_it_started_in_sessions_of_their_own() 
     left = [pid for pid in jobs if Path(f"/proc/{pid}").exists()
             and "\nState:\tZ" not in Path(f"/proc/{pid}/status").read_text()]  # fmt: skip
     assert not left, left
+
+
+# --- `--configfile` last in every documented command ---------------------------------------------
+DOCS = [REPO_ROOT / "README.md", *sorted((REPO_ROOT / "docs").glob("*.md"))]
+
+
+def _documented_snakemake() -> list[tuple[str, list[str]]]:
+    """Every `snakemake …` command of the README and docs/ (a line of a code block or inline
+    code, continued lines joined), split into words, its comment left out."""
+    import shlex
+
+    found = []
+    for doc in DOCS:
+        text = doc.read_text().replace("\\\n", " ")
+        for line in text.splitlines():
+            for command in re.findall(r"(?:^|`)\s*(snakemake [^`#]*)", line):
+                with contextlib.suppress(ValueError):  # an unbalanced quote: prose
+                    found.append((f"{doc.name}: {command.strip()}", shlex.split(command)))
+    return found
+
+
+def test_the_documented_commands_put_configfile_last() -> None:
+    """`snakemake -n --configfile config/smoke.yaml all replicates` reads the targets as config
+    files and ends in Snakemake's FileNotFoundError, raised while Snakemake reads its command
+    line, before the workflow (and any of the project's code) is read: no hint can be given
+    there. So every command the README and docs/ give puts its targets before `--configfile`:
+    the words after it are config files, up to the next option."""
+    commands = _documented_snakemake()
+    with_files = [c for c in commands if "--configfile" in c[1]]
+    assert len(with_files) >= 5, commands  # the reader sees the commands
+    wrong = []
+    for shown, words in with_files:
+        at = words.index("--configfile") + 1
+        while at < len(words) and not words[at].startswith("-"):
+            if not words[at].endswith((".yaml", ".yml", ".json")):
+                wrong.append(f"{shown}  ({words[at]!r} would be read as a config file)")
+            at += 1
+    assert not wrong, "\n".join(wrong)
+    readme = (REPO_ROOT / "README.md").read_text()
+    assert "`--configfile` goes last" in readme
+
+
+# --- verdicts.interval refuses what it cannot summarise -------------------------------------------
+def test_interval_refuses_an_infinite_or_overflowing_effect() -> None:
+    """{draw 0: 1e308, draw 1: −1e308} gave an estimate of 0 within [−inf, inf] and only
+    RuntimeWarnings; an infinite value was left out without a word. Both are refused by the
+    function itself (a ValueError and a CapeError: one line where a command meets it), with no
+    warning; a missing value (NaN) is still left out. Table 9 screens such values first and
+    says which run is unusable (tests/test_small_findings.py)."""
+    import math
+    import warnings
+
+    from cape.errors import CapeError
+    from cape.study.verdicts import UnusableEffectsError, equivalence_p, interval
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a RuntimeWarning fails the test
+        for effects, words in (
+            ({0: [1e308], 1: [-1e308]}, "1e+308 cannot be summarised"),
+            ({0: [1e200, -1e200, 3.0]}, "1e+200 cannot be summarised"),
+            ({0: [1e308, 1e308], 1: [1.0]}, "1e+308 cannot be summarised"),
+            ({0: [1.0, math.inf], 1: [3.0]}, "draw 0's effect inf is not a finite number"),
+            ({0: [1.0], 1: [-math.inf, 2.0]}, "draw 1's effect -inf is not a finite number"),
+        ):
+            with pytest.raises(UnusableEffectsError, match=re.escape(words)) as refused:
+                interval(effects)
+            assert isinstance(refused.value, ValueError) and isinstance(refused.value, CapeError)
+        with pytest.raises(UnusableEffectsError):
+            equivalence_p({0: [math.inf], 1: [1.0]}, 1.0, 2)
+        kept = interval({0: [1.0, math.nan], 1: [3.0, None]})  # type: ignore[list-item]
+        assert kept.estimate == 2.0 and kept.values == 2
+
+
+# --- question.seeds.least is never lowered without a word ----------------------------------------
+def test_the_least_seeds_a_later_draw_gets_is_kept() -> None:
+    """`question.seeds.least` above the study's seeds (here 8 over 5) was lowered to them (or to
+    the measured most) without a word. Now the most a later draw may get is at least the
+    least, and where no cost is measured the later draws get the least, saying so."""
+    from cape.study.question import next_seeds
+    from cape.study.question_plan import QuestionSettings
+    from cape.study.question_report import Cost, most_seeds
+
+    margins = {"lap_time_penalised": 0.2}
+    settings = QuestionSettings(("epm", "dpm"), (3, 6), 0.05, 2.0, margins, "truth", ("0",), 5,
+                                8, 1000, 0.05, None)  # fmt: skip
+    # a draw costs two seeds' runs (60 s against 10 s × 3 NMPCs): the measured most is 5
+    cheap_draws = Cost(trainings={"epm": [60.0], "dpm": [60.0]}, draws={"epm": 1, "dpm": 1},
+                       runs_s=10.0, runs=1)  # fmt: skip
+    assert most_seeds(settings, cheap_draws) == 8  # was 5: the study's, below the least
+    assert most_seeds(settings, Cost()) == 8  # nothing measured
+    chosen, _, said = next_seeds([], settings.design(), 0, {"epm": 3, "dpm": 3}, Cost(), settings,
+                                 most=6)  # fmt: skip
+    assert chosen == 8 and "`question.seeds.least`'s 8" in said, said
+    # a published stage's most (cape question --reuse), below the least
+    chosen, _, said = next_seeds([], settings.design(), 0, {"epm": 3, "dpm": 3}, cheap_draws,
+                                 settings, most=6)  # fmt: skip
+    assert chosen == 8 and "of 8 … 8" in said, said

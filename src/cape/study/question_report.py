@@ -37,7 +37,10 @@ def draw_meta(model: str, replicate: int) -> dict[str, Any]:
     path = Path(paths.model_dir(model, replicate), paths.META)
     if not path.is_file():
         return {}
-    return read_json(path, "a draw's metadata", "delete the draw's folder and run again")
+    weights = Path(paths.model_dir(model, replicate), paths.WEIGHTS)
+    fix = (f"make the draw again (`snakemake --cores 2 --force {weights}`, which replaces the "
+           "draw's own files), then run the command again")  # fmt: skip
+    return read_json(path, "a draw's metadata", fix)
 
 
 def read_stage_runs(settings: QuestionSettings, plan: Plan) -> pd.DataFrame | None:
