@@ -266,11 +266,9 @@ KINDS = ("empty", "truncated", "foreign")
 
 def _kinds(command: str) -> tuple[str, ...]:
     """The spec damage tried on ``command``: all three on the rollout (the finding's command),
-    one on each other command, in turn (every command reads its spec through the same
-    ``cape.config.config_from_args``; a cape process is 2 s of CPU)."""
-    if command == "rollout":
-        return KINDS
-    return (KINDS[list(SPEC_COMMANDS).index(command) % len(KINDS)],)
+    the empty spec (which every command ignored) on each other: every command reads its spec
+    through the same ``cape.config.config_from_args``, and a cape process is 2 s of CPU."""
+    return KINDS if command == "rollout" else ("empty",)
 
 
 @pytest.mark.parametrize("command", SPEC_COMMANDS)

@@ -507,13 +507,15 @@ class StudyWorkflow:
         ]
 
     def question_targets(self) -> list[str]:
-        """Every file of the runs the question's current stage names, with their solvers."""
+        """Every file of the runs the question's current stage names, with their solvers. A
+        plan or question refused (a stage.yaml edited by hand: seeds that do not cover its
+        draws) is its one line on stderr, as in ``refusals``, not Snakemake's frames."""
         if not self.plan:
             return []
-        settings = QuestionSettings.from_config(self.config, SOURCE)
-        runs = [
-            self.grid.get(run, run) for run in stage_runs(settings, Plan.from_config(self.plan))
-        ]
+        with refusals():
+            settings = QuestionSettings.from_config(self.config, SOURCE)
+            plan = Plan.from_config(self.plan)
+        runs = [self.grid.get(run, run) for run in stage_runs(settings, plan)]
         return [*self.solver_outputs(runs), *self.run_outputs(runs)]
 
     def stale_summaries(self) -> list[str]:
