@@ -2,7 +2,8 @@
 
 - ``run(main)``: a problem the user can fix (``CapeError``, a failed read or write) ends the
   script as one line on stderr, ``<script>: error: <message>``, and exit status 2, never a
-  traceback; Ctrl-C as one line and 130.
+  traceback; Ctrl-C as one line and 130, and SIGTERM where a script turns it into
+  ``cape.cli.Interrupted`` (scheduler_threads.py) as one line and 143.
 - ``add_config(parser)`` / ``study_config(args)``: the study's config as the workflow reads
   it, ``config/config.yaml`` with each ``--configfile`` merged over it as Snakemake's
   ``--configfile`` does (the smoke study: ``--configfile config/smoke.yaml``).
@@ -35,7 +36,7 @@ def script_name() -> str:
 def run(main: Callable[[], int | None]) -> int:
     """``main()``'s exit status (0 when it returns None); a ``CapeError`` or ``OSError`` is
     one line on stderr and status 2, Ctrl-C one line and 130."""
-    from cape.cli import told
+    from cape.cli import Interrupted, told
     from cape.storage import ownership
 
     succeeded = False
@@ -48,7 +49,7 @@ def run(main: Callable[[], int | None]) -> int:
 
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
-    except (CapeError, OSError, KeyboardInterrupt) as exc:
+    except (CapeError, OSError, KeyboardInterrupt, Interrupted) as exc:
         status, message = told(exc)
         print(f"{script_name()}: {message}", file=sys.stderr)
         return status

@@ -13,17 +13,25 @@ thread of ``snakemake`` and its jobs counts, as ``ulimit -u`` counts a login nod
 Prints, per run: the most and the median threads, the process's own CPU seconds, the wall time
 and the exit status.
 
+Each ``snakemake`` runs in a session of its own and is waited for at most ``--timeout`` seconds.
+Stopped itself (SIGTERM, as ``timeout`` sends it, or Ctrl-C), or past that bound, the script stops
+its ``snakemake`` and every job it started, removes the toy's folder and ends in one line; killed
+outright (SIGKILL), it leaves a toy ``snakemake`` no parent (the kernel sends it SIGTERM).
+
     python benchmarks/scheduler_threads.py [--toy 1500] [--nproc 256] [--study TARGET…]
                                            [--configfile config/smoke.yaml] [--json PATH]
+                                           [--timeout 21600]
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import ctypes
 import os
 import resource
 import shutil
+import signal
 import statistics
 import subprocess
 import sys
@@ -36,7 +44,12 @@ from pathlib import Path
 from _common import json_output, run
 
 from cape.errors import CapeError
+from cape.workflow.processes import stop
 from cape.workflow.scheduler import threads_of
+
+TIMEOUT = 6 * 3600.0  # s: the default bound on one snakemake run (--timeout)
+GRACE = 10.0  # s: how long a stopped snakemake gets to end its jobs before it is killed
+PR_SET_PDEATHSIG = 1
 
 TOY = """\
 {bound}
@@ -89,13 +102,16 @@ def _pids_cgroup(limit: int) -> Path | None:
     return None
 
 
-def _limit(nproc: int | None, group: Path | None) -> Callable[[], None] | None:
-    """In the child before exec: ``ulimit -u nproc``, or the pids cgroup for root (whom
-    RLIMIT_NPROC does not bind)."""
-    if nproc is None:
-        return None
+def _limit(nproc: int | None, group: Path | None) -> Callable[[], None]:
+    """In the child before exec: SIGTERM when this script dies (Linux's parent-death signal:
+    even killed outright, it leaves no snakemake running on its own), and ``ulimit -u nproc``,
+    or the pids cgroup for root (whom RLIMIT_NPROC does not bind)."""
 
     def apply() -> None:
+        with contextlib.suppress(OSError, AttributeError):
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+        if nproc is None:
+            return
         resource.setrlimit(resource.RLIMIT_NPROC, (nproc, nproc))
         if group is not None:
             (group / "cgroup.procs").write_text(f"{os.getpid()}\n")
@@ -103,8 +119,25 @@ def _limit(nproc: int | None, group: Path | None) -> Callable[[], None] | None:
     return apply
 
 
-def sample(label: str, command: Sequence[str], cwd: Path, nproc: int | None, log: Path) -> Sampled:
-    """Run ``command`` in ``cwd`` and sample its process until it ends."""
+def _stopped(signum: int, _frame: object) -> None:
+    """SIGTERM to this script (``timeout``, a scheduler): raised where it is, so that its
+    ``snakemake`` is stopped and its toy folder removed on the way out (``run``: one line, exit
+    status 143)."""
+    from cape.cli import Interrupted
+
+    raise Interrupted(signum)
+
+
+def sample(
+    label: str,
+    command: Sequence[str],
+    cwd: Path,
+    nproc: int | None,
+    log: Path,
+    timeout: float = TIMEOUT,
+) -> Sampled:
+    """Run ``command`` in ``cwd`` and sample its process until it ends; stopped (with what it
+    started) past ``timeout`` s, or when this script is stopped."""
     threads: list[int] = []
     cpu = 0.0
     start = time.monotonic()
@@ -116,25 +149,37 @@ def sample(label: str, command: Sequence[str], cwd: Path, nproc: int | None, log
                 "--nproc as root needs a writable pids cgroup (RLIMIT_NPROC binds no root "
                 "process); run as another user, or without --nproc"
             )
-    with log.open("w") as out:
-        proc = subprocess.Popen(
-            command,
-            cwd=cwd,
-            stdout=out,
-            stderr=subprocess.STDOUT,
-            preexec_fn=_limit(nproc, group),
-        )
-        while proc.poll() is None:
-            n, c = threads_of(proc.pid), _cpu(proc.pid)
-            if n is not None:
-                threads.append(n)
-            if c is not None:
-                cpu = c
-            time.sleep(0.2)
+    try:
+        with log.open("w") as out:
+            proc = subprocess.Popen(
+                command,
+                cwd=cwd,
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                preexec_fn=_limit(nproc, group),
+                start_new_session=True,  # stopped as a whole, by this script alone
+            )
+            try:
+                while proc.poll() is None:
+                    if time.monotonic() - start > timeout:
+                        raise CapeError(
+                            f"{label}: snakemake had not ended after --timeout {timeout:g} s, so "
+                            f"it was stopped (its log: {log})"
+                        )
+                    n, c = threads_of(proc.pid), _cpu(proc.pid)
+                    if n is not None:
+                        threads.append(n)
+                    if c is not None:
+                        cpu = c
+                    time.sleep(0.2)
+            except BaseException:  # stopped, or past --timeout: snakemake and its jobs with it
+                stop(proc, GRACE)
+                raise
+    finally:
+        if group is not None:
+            with contextlib.suppress(OSError):
+                group.rmdir()
     wall = time.monotonic() - start
-    if group is not None:
-        with contextlib.suppress(OSError):
-            group.rmdir()
     return Sampled(
         label,
         max(threads, default=0),
@@ -145,15 +190,17 @@ def sample(label: str, command: Sequence[str], cwd: Path, nproc: int | None, log
     )
 
 
-def toy(jobs: int, nproc: int | None) -> list[Sampled]:
-    """The toy workflow, as released and bounded."""
+def toy(jobs: int, nproc: int | None, timeout: float = TIMEOUT) -> list[Sampled]:
+    """The toy workflow, as released and bounded, each in a folder removed after it (stopped
+    or not)."""
     results = []
     for label, bound in (("snakemake as released", ""), ("with CAPE's bound", BOUND)):
         with tempfile.TemporaryDirectory(prefix="cape-threads-") as tmp:
             folder = Path(tmp)
             (folder / "Snakefile").write_text(TOY.format(bound=bound, jobs=jobs))
             command = [sys.executable, "-m", "snakemake", "--cores", "2", "--quiet", "all"]
-            result = sample(f"toy, {jobs} jobs, {label}", command, folder, nproc, folder / "log")
+            label = f"toy, {jobs} jobs, {label}"
+            result = sample(label, command, folder, nproc, folder / "log", timeout)
             if result.returncode != 0:
                 print((folder / "log").read_text()[-2000:], file=sys.stderr)
             results.append(result)
@@ -169,7 +216,12 @@ def main() -> int:
     parser.add_argument("--configfile", action="append", default=[])
     parser.add_argument("--nproc", type=int, help="RLIMIT_NPROC of each snakemake (ulimit -u)")
     parser.add_argument("--json", type=Path, help="also write the results here")
+    parser.add_argument("--timeout", type=float, default=TIMEOUT, metavar="S",
+                        help="stop a snakemake run after S s (default %(default)g)")  # fmt: skip
     args = parser.parse_args()
+    if not 1 <= args.timeout <= 30 * 86400:  # NaN too
+        parser.error("--timeout: give 1 to 2592000 seconds")
+    signal.signal(signal.SIGTERM, _stopped)  # Ctrl-C is KeyboardInterrupt: stopped the same way
     if not 0 <= args.toy <= 100_000:
         parser.error("--toy: give 0 to 100000 jobs")
     if args.nproc is not None and not 16 <= args.nproc <= 1_000_000:
@@ -177,14 +229,14 @@ def main() -> int:
     if shutil.which("snakemake") is None:
         parser.error("snakemake is not on PATH: activate the environment of requirements.txt")
     with json_output(args.json, "scheduler_threads") as write:
-        results = toy(args.toy, args.nproc) if args.toy else []
+        results = toy(args.toy, args.nproc, args.timeout) if args.toy else []
         if args.study:
             command = ["snakemake", "--cores", "2", *args.study]  # targets before the options
             for configfile in args.configfile:
                 command += ["--configfile", configfile]
             log = Path(tempfile.mkstemp(prefix="cape-threads-", suffix=".log")[1])
             label = f"CAPE workflow: {' '.join(args.study)}"
-            results.append(sample(label, command, Path.cwd(), args.nproc, log))
+            results.append(sample(label, command, Path.cwd(), args.nproc, log, args.timeout))
             print(f"(its log: {log})")
         limit = f"ulimit -u {args.nproc}" if args.nproc else "no thread limit"
         print(f"snakemake's own process, sampled every 0.2 s ({limit}):")

@@ -11,7 +11,9 @@ exit status 2, and a study that lacks a part is told what it lacks, never given 
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -173,7 +175,8 @@ def test_a_truncated_timing_json_is_one_line(study: Path) -> None:
     (study / folder / "timing.json").write_text('{"job_s": {"startup": 0.1, ')
     for script, args in (("study_cost.py", []), ("draw_cost.py", ["--replicate", "0"])):
         result = benchmark(script, *args, cwd=study)
-        one_message(result, f"{script}: error:", str(folder / "timing.json"), "delete the run")
+        one_message(result, f"{script}: error:", str(folder / "timing.json"), "recompute that run")
+        assert "rm " not in result.stderr and "delete" not in result.stderr
 
 
 def test_a_run_without_its_metrics_json_is_one_line(study: Path) -> None:
@@ -259,3 +262,54 @@ def test_the_projection_schedules_as_computed_by_hand() -> None:
 def test_acados_missing_is_one_line_naming_the_install(tmp_path: Path) -> None:
     result = benchmark("acados_anchor.py", "--acados", str(tmp_path / "none"), cwd=tmp_path)
     one_message(result, "acados", "requirements-acados.txt")
+
+
+def _processes_in(folder: Path) -> list[int]:
+    """The live processes (not zombies) whose working folder is ``folder``."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        if not proc.name.isdigit():
+            continue
+        try:
+            if os.readlink(proc / "cwd") != str(folder):
+                continue
+            if "\nState:\tZ" not in (proc / "status").read_text():
+                found.append(int(proc.name))
+        except OSError:
+            continue
+    return found
+
+
+def test_scheduler_threads_stopped_stops_its_snakemake_and_removes_its_toy(
+    tmp_path: Path,
+) -> None:
+    """scheduler_threads.py stopped as `timeout` stops it (SIGTERM to its process group) while
+    its toy `snakemake` runs: one line, exit 143, no process of the toy left (Snakemake and its
+    jobs) and no toy folder (both were left: a snakemake asleep for 70 minutes, once)."""
+    env = {**os.environ, "TMPDIR": str(tmp_path)}  # the toy's folder goes here
+    script = subprocess.Popen(
+        [sys.executable, str(BENCHMARKS / "scheduler_threads.py"), "--toy", "400"],
+        cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        start_new_session=True,
+    )  # fmt: skip
+    try:
+        deadline, running = time.monotonic() + 120, []
+        while not running and time.monotonic() < deadline and script.poll() is None:
+            toys = list(tmp_path.glob("cape-threads-*"))
+            if toys and (toys[0] / "out").is_dir():  # its snakemake has started jobs
+                running = _processes_in(toys[0].resolve())
+            time.sleep(0.1)
+        assert running, "the toy snakemake did not start"
+        os.killpg(script.pid, signal.SIGTERM)  # `timeout`'s stop: the whole process group
+        _, err = script.communicate(timeout=60)
+    finally:
+        if script.poll() is None:
+            os.killpg(script.pid, signal.SIGKILL)
+            script.wait()
+    assert script.returncode == 143, err
+    assert len(err.strip().splitlines()) == 1 and "terminated" in err, err
+    time.sleep(0.5)
+    left = [pid for pid in running if Path(f"/proc/{pid}").exists()
+            and "\nState:\tZ" not in Path(f"/proc/{pid}/status").read_text()]  # fmt: skip
+    assert not left, left
+    assert not list(tmp_path.glob("cape-threads-*"))

@@ -79,6 +79,7 @@ OPTIONS = [
     Option("rollout", "--replicate", int, 0, DRAWS - 1, "training.replicates"),
     Option("aggregate", "--replicates", int, 0, DRAWS - 1, "training.replicates"),
     _schema_option("raceline", "--time-limit", "rollout.time_limit"),
+    Option("question", "--cores", int, 1, 1_000_000, "cores"),
     Option("question", "--project-cores", int, 1, 1_000_000, "cores"),
 ]
 IDS = [f"{o.command} {o.flag}" for o in OPTIONS]

@@ -170,7 +170,9 @@ def test_a_damaged_or_edited_run_stops_the_aggregation(
     )
     captured = capsys.readouterr()
     one_message(subprocess.CompletedProcess([], code, captured.out, captured.err),
-                str(folder), f"rm -r {folder}", *needles)  # fmt: skip
+                str(folder), f"snakemake --cores 1 --force {folder / 'metrics.json'}",
+                *needles)  # fmt: skip
+    assert "rm " not in captured.err  # no advice to delete a folder (issue 61)
     assert not out.exists()  # nothing that looks finished
 
 
@@ -344,7 +346,8 @@ def test_a_run_is_tied_to_its_replicates_networks(
     stale = cape(*aggregate)
     one_message(stale, str(out), "plant model dpm", recorded["weights_sha256"][:12],
                 json.loads((folder / "meta.json").read_text())["weights_sha256"][:12],
-                f"rm -r {out}")  # fmt: skip
+                f"snakemake --cores 1 --force {out / 'metrics.json'}")  # fmt: skip
+    assert "rm " not in stale.stderr  # no advice to delete a folder (issue 61)
 
 
 def test_a_model_table_is_tied_to_its_replicates_networks(

@@ -216,3 +216,75 @@ def test_status_refuses_a_bad_setting_in_one_line(tmp_path: Path, name: str, val
     done = _script("status.py", "11", cwd=tmp_path, **{name: value})
     assert done.returncode == 2 and done.stdout == ""
     assert name in _one_line(done)
+
+
+# --- issue 61: an sbatch that never answers, a rule name that leaves the log folder -----------
+def test_submit_stops_an_sbatch_that_never_answers(tmp_path: Path) -> None:
+    """An sbatch that hangs (a controller that takes the connection and never replies) is
+    stopped after CAPE_SLURM_SUBMIT_TIMEOUT seconds with what it started, the job reported not
+    submitted in one line, the job script as it was (it waited forever)."""
+    body = (f"echo $$ > {tmp_path}/pid\n/bin/sleep 30 &\necho $! > {tmp_path}/child\nwait\n"
+            "echo 7\n")  # fmt: skip
+    _fake(tmp_path / "bin", "sbatch", body)
+    script = _jobscript(tmp_path, JOB)
+    before = script.read_bytes()
+    start = time.monotonic()
+    done = _script("submit.py", str(script), cwd=tmp_path, CAPE_SLURM_SUBMIT_TIMEOUT="1")
+    assert time.monotonic() - start < 20, done
+    assert done.returncode == 1 and done.stdout == "", done
+    said = _one_line(done)
+    assert "no answer in 1 s" in said and "CAPE_SLURM_SUBMIT_TIMEOUT" in said, said
+    assert "squeue" in said and "cape-train" in said, said  # how to look for a late queued job
+    assert script.read_bytes() == before
+    time.sleep(0.5)
+    for name in ("pid", "child"):  # the fake and its sleep: both stopped, not left running
+        pid = int((tmp_path / name).read_text())
+        status = Path(f"/proc/{pid}/status")
+        alive = status.exists() and "\nState:\tZ" not in status.read_text()
+        assert not alive, (name, pid)
+
+
+@pytest.mark.parametrize("value", ["ten", "0", "-1", "nan", "inf"])
+def test_submit_refuses_a_bad_timeout_setting_before_changing_anything(
+    tmp_path: Path, value: str
+) -> None:
+    _fake(tmp_path / "bin", "sbatch", f"echo called > {tmp_path}/called\necho 7\n")
+    script = _jobscript(tmp_path, JOB)
+    before = script.read_bytes()
+    done = _script("submit.py", str(script), cwd=tmp_path, CAPE_SLURM_SUBMIT_TIMEOUT=value)
+    assert done.returncode == 2 and done.stdout == ""
+    assert "CAPE_SLURM_SUBMIT_TIMEOUT" in _one_line(done)
+    assert script.read_bytes() == before
+    assert not (tmp_path / "called").exists() and not (tmp_path / "results").exists()
+
+
+ESCAPES = ["../../../../escape", "..", "a/../../../../../b", "x%j", "../"]
+
+
+@pytest.mark.parametrize("kind", ["single", "group"])
+@pytest.mark.parametrize("name", ESCAPES)
+def test_a_job_name_never_sends_the_slurm_log_outside_its_folder(
+    tmp_path: Path, name: str, kind: str
+) -> None:
+    """A rule or group named with `../` (or `%`, which sbatch expands in --output) is
+    submitted with its log, and the folder made for it, inside results/logs/slurm (it went to
+    ../../../../escape/<id>.log)."""
+    _fake(tmp_path / "bin", "sbatch", f'for a in "$@"; do echo "$a"; done > {tmp_path}/args\n'
+                                      "echo 7\n")  # fmt: skip
+    job = {**JOB, "rule": name} if kind == "single" else {**JOB, "type": "group", "groupid": name}
+    work = tmp_path / "study"
+    work.mkdir()
+    script = _jobscript(work, job)
+    (work / "bin").symlink_to(tmp_path / "bin")
+    done = _script("submit.py", str(script), cwd=work)
+    assert done.returncode == 0 and done.stdout == "7\n", done
+    args = (tmp_path / "args").read_text().splitlines()
+    output = next(a.removeprefix("--output=") for a in args if a.startswith("--output="))
+    logs = (work / "results" / "logs" / "slurm").resolve()
+    folder = (work / output).parent.resolve()
+    assert folder.parent == logs, output  # one folder under the logs' folder
+    assert "%" not in folder.name and output.endswith("/%j.log"), output
+    assert folder.is_dir()
+    made = {p.name for p in tmp_path.iterdir()}
+    assert made == {"bin", "study", "args"}, made  # nothing made beside the study
+    assert {p.name for p in (work / "results").iterdir()} == {"logs"}

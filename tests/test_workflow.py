@@ -458,7 +458,8 @@ def test_a_damaged_run_stops_what_reads_it_and_is_recomputed_once_deleted(
     """A truncated time series in a copy of the smoke study: the aggregation and the notebook
     that draws the run each stop with one message naming the run's folder and the fix; the
     notebook leaves no `.part.ipynb` among the results (its executed copy goes beside its log);
-    deleting the folder, as the message says, and rerunning recomputes the run and draws it."""
+    the fix the message gives (`snakemake --force` of the run's metrics.json: no `rm`, issue 61)
+    recomputes the run, and the notebook then draws it."""
     work = tmp_path / "copy"
     shutil.copytree(smoke_study, work, symlinks=True)
     folder = work / "results/runs/learned/rep0/epm/epm/pid/eta0/seed0"
@@ -475,8 +476,10 @@ def test_a_damaged_run_stops_what_reads_it_and_is_recomputed_once_deleted(
     aggregated = _snakemake(*common, "-f", "results/study/runs.parquet", timeout=600)
     log = (work / "results/logs/study/aggregate.log").read_text()
     assert aggregated.returncode != 0 and str(rel_series) in log, log
-    assert f"rm -r {rel_folder}" in log, log
-    shutil.rmtree(folder)
+    fix = f"snakemake --cores 1 --force {rel_folder / 'metrics.json'}"
+    assert fix in log and "rm " not in log, log
+    forced = _snakemake("--force", str(rel_folder / "metrics.json"), *common, timeout=900)
+    assert forced.returncode == 0, forced.stdout[-3000:] + forced.stderr[-3000:]
     again = _snakemake("results/notebooks/learned.html", *common, timeout=900)
     assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
     assert (folder / "metrics.json").is_file() and (

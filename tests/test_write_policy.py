@@ -224,7 +224,7 @@ def test_a_model_folder_is_the_models_only_by_its_owner_record(tmp_path: Path) -
     (tmp_path / "other").mkdir()
     (tmp_path / "other" / "health.json").write_text("{}")
     with (
-        pytest.raises(CapeError, match=r"no owner record.*delete it first"),
+        pytest.raises(CapeError, match=r"no owner record.*CAPE replaces only what it wrote"),
         claimed([_training_output(tmp_path / "other", "dpm")], "test"),
     ):
         pass

@@ -351,25 +351,61 @@ def config_from_args(
 ) -> dict[str, Any]:
     """The config a command works with: the sections of a job specification file (``spec``,
     how the workflow passes them) or given as JSON, else the config file."""
-    if spec:
+    fix = ""
+    if spec is not None:  # given, even empty: never the config file instead (issue 61)
+        fix = "; give the file the workflow wrote for this job under results/specs/"
         try:
             config_json = Path(spec).read_text()
-        except OSError as exc:
+        except (OSError, UnicodeDecodeError) as exc:
+            said = getattr(exc, "strerror", None) or "not text"
             raise CapeError(
-                f"--spec {spec}: cannot read the job specification ({exc.strerror}); "
-                "give the file the workflow wrote under results/specs/"
+                f"--spec {spec}: cannot read the job specification ({said}){fix}"
             ) from None
-    if config_json:
-        source = f"--spec {spec}" if spec else "--config-json"
+    if config_json is not None:
+        source = f"--spec {spec}" if spec is not None else "--config-json"
+        if not config_json.strip():
+            raise CapeError(f"{source} is empty, not a job specification{fix}")
         try:
             sections = json.loads(config_json)
         except json.JSONDecodeError as exc:
-            raise CapeError(f"{source} is not valid JSON ({exc})") from exc
+            raise CapeError(f"{source} is not valid JSON ({exc}){fix}") from exc
         if not isinstance(sections, dict):
-            raise CapeError(f"{source} must be a JSON object of config sections")
+            raise CapeError(f"{source} must be a JSON object of config sections{fix}")
+        if not sections:
+            raise CapeError(f"{source} holds no config section, so it is no job specification{fix}")
         checked_once(config_json, lambda: validate_config(sections, source, partial=True))
-        return sections
+        return Sections(sections, source=source)  # a missing key: one line, not a traceback
     return load_config(config_path or DEFAULT_CONFIG)
+
+
+class MissingSettingError(CapeError, KeyError):
+    """A section or key a command reads that the sections it was given lack: one line, as every
+    ``CapeError``; and a ``KeyError`` still, for code that asks for a key and falls back."""
+
+    __str__ = Exception.__str__  # the message, not KeyError's quoted repr of it
+
+
+class Sections(dict):
+    """The config sections a job was given (``--spec`` or ``--config-json``), every mapping in
+    them knowing where it came from: a section or key the command reads and they lack (a
+    specification of another job, or one edited by hand) is refused in one line naming the
+    source and the field (``MissingSettingError``), never a KeyError's traceback. The schema cannot
+    require them: a rule passes only the parts of a section its job reads."""
+
+    def __init__(self, *args: Any, source: str = "", where: str = "", **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.source, self.where = source, where
+        for key, value in self.items():
+            if isinstance(value, dict) and not isinstance(value, Sections):
+                dict.__setitem__(self, key, Sections(value, source=source, where=f"{where}{key}."))
+
+    def __missing__(self, key: Any) -> Any:
+        fix = "give the file the workflow wrote for this job under results/specs/"
+        if not self.where:
+            raise MissingSettingError(f"{self.source} lacks the `{key}` section this command needs "
+                                 f"(the specification of another job?); {fix}")  # fmt: skip
+        raise MissingSettingError(f"{self.source}: field `{self.where}{key}` is missing, and this "
+                             f"command reads it; {fix}")  # fmt: skip
 
 
 def checked_once(what: str, check: Callable[[], Any], code: tuple[Path, ...] = ()) -> None:
@@ -423,6 +459,12 @@ def section(config: dict[str, Any], name: str) -> Any:
     try:
         return config[name]
     except KeyError:
+        source = getattr(config, "source", None)
+        if source is not None:  # the sections a job was given: those of another job?
+            raise CapeError(
+                f"{source} lacks the `{name}` section this command needs (the specification of "
+                "another job?); give the file the workflow wrote for this job under results/specs/"
+            ) from None
         raise CapeError(
             f"the configuration lacks the `{name}` section this command needs"
         ) from None

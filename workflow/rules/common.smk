@@ -13,6 +13,7 @@ from cape.workflow import specs
 from cape.workflow.study import NOTEBOOKS as DECLARED
 from cape.workflow.study import RUN_FOLDER, RUN_LOG, RUN_STEM, TABLE_EXTS
 from cape.workflow.study import StudyWorkflow, prepare, refusals, run_notebook
+from cape.workflow.study import job_spec as _job_spec
 
 with refusals():  # a bad config value: its one-line reason, no traceback
     prepare(config, workflow.is_main_process)
@@ -32,8 +33,9 @@ wildcard_constraints:
 
 
 def job_spec(job, text):
-    """The path of a job's specification (cape.workflow.specs): its command reads the file."""
-    return specs.spec_file(job, text)
+    """The path of a job's specification (cape.workflow.specs): its command reads the file. A
+    refusal is one line on stderr (cape.workflow.study.job_spec), not Snakemake's frames."""
+    return _job_spec(job, text)
 
 
 def reported_figures(notebook, folder, caption, category):

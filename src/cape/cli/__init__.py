@@ -74,6 +74,7 @@ def describe_os_error(exc: OSError) -> str:
         errno.ENOSPC: "the disk is full; free some space and run the command again",
         errno.EDQUOT: "the disk quota is exhausted; free some space and run the command again",
         errno.EACCES: "permission denied; choose a location you can write to",
+        errno.EPERM: "an immutable folder, or another user's; choose a location you can write to",
         errno.EROFS: "the file system is read-only; choose another location",
     }
     fix = fixes.get(exc.errno or 0, "check the path and the file system, then run it again")

@@ -314,11 +314,11 @@ def cmd_export_network(args: argparse.Namespace) -> None:
         )
     from cape.storage.ownership import Output
 
+    compile_settings = _spec(args).rollout_compile  # a bad --spec: refused before any work
     target = Path(args.out) if args.out else Path(folder) / paths.NETWORK
     _claim(args, Output(target, "network", _made_from_weights(args.model), (".npz",)))
     out = export_network(folder, target, expected_name=name)
     print(f"wrote {out}: the {name} network for the closed loop")
-    compile_settings = _spec(args).rollout_compile
     if compile_settings and compile_settings.get("enabled", False):
         import numpy as np
 

@@ -12,7 +12,6 @@ and looks.json, after every stage. How to read it: docs/question.md.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import re
@@ -29,6 +28,7 @@ from cape.errors import CapeError
 from cape.layout import paths
 
 DEFAULT_FILES = ("config/config.yaml", "config/question.yaml")
+STOP_GRACE = 60.0  # s: how long a stopped stage's Snakemake gets to end its jobs before SIGKILL
 
 
 def _arguments(p: argparse.ArgumentParser) -> None:
@@ -46,7 +46,13 @@ def _arguments(p: argparse.ArgumentParser) -> None:
         help="do not merge config/question.yaml (the question's models then come from the "
         "other files)",
     )
-    p.add_argument("--cores", default="2", help="Snakemake's --cores for each stage (%(default)s)")
+    p.add_argument(
+        "--cores",
+        type=CORES,
+        default=2,
+        metavar="N",
+        help="Snakemake's --cores for each stage (%(default)s)",
+    )
     p.add_argument(
         "--project-cores",
         type=CORES,
@@ -100,7 +106,14 @@ def merged_config(files: Sequence[str]) -> dict[str, Any]:
         if not path.is_file():
             raise CapeError(f"config file {path} not found; run from the repository root")
         try:
-            loaded = yaml.safe_load(path.read_text()) or {}
+            text = path.read_text()
+        except UnicodeDecodeError:
+            raise CapeError(f"{path}: not a text file, so no YAML config; give a config file "
+                            "such as config/smoke.yaml") from None  # fmt: skip
+        except OSError as exc:
+            raise CapeError(f"{path}: cannot be read ({exc.strerror})") from None
+        try:
+            loaded = yaml.safe_load(text) or {}
         except yaml.YAMLError as exc:
             raise CapeError(f"{path}: not valid YAML ({exc})") from exc
         if not isinstance(loaded, dict):
@@ -119,7 +132,7 @@ def _merge(into: dict[str, Any], other: Mapping[str, Any]) -> None:
 
 def _snakemake(
     files: Sequence[str],
-    cores: str,
+    cores: int,
     extra: Sequence[str],
     log: Path,
     what: str,
@@ -130,7 +143,7 @@ def _snakemake(
     the log."""
     cmd = [sys.executable, "-m", "snakemake", "-s", snakefile(), target, "--configfile", *files]
     if not any(a.startswith(("--cores", "-c")) for a in extra):
-        cmd += ["--cores", cores]
+        cmd += ["--cores", str(cores)]
     cmd += list(extra)
     log.parent.mkdir(parents=True, exist_ok=True)
     # appended, line by line: a resumed stage keeps its earlier attempts; `tail -f` follows it
@@ -158,49 +171,16 @@ def _snakemake(
                     shown = int(done[3]) // 10
                     print(f"  {what}: {done[0]}", flush=True)
             status = proc.wait()
-        except BaseException:
-            _stop(proc)
+        except BaseException:  # stopped: Snakemake and its jobs with it, then the next run resumes
+            from cape.workflow.processes import stop
+
+            stop(proc, grace=STOP_GRACE)
             raise
     if status != 0:
         raise CapeError(
             f"{what}: Snakemake failed (exit {status}); its output, with the failed job and its "
             f"log, is in {log}. Fix that, then run `cape question` again: it resumes"
         )
-
-
-def _descendants(pid: int) -> list[int]:
-    """Every process below ``pid`` (from /proc): Snakemake starts each job in a session of its
-    own, so signalling Snakemake's session does not reach them."""
-    parents: dict[int, list[int]] = {}
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        with contextlib.suppress(OSError, ValueError, IndexError):
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-            parents.setdefault(int(fields[1]), []).append(int(stat.parent.name))
-    found, todo = [], [pid]
-    while todo:
-        for child in parents.get(todo.pop(), []):
-            found.append(child)
-            todo.append(child)
-    return found
-
-
-def _stop(proc: subprocess.Popen) -> None:
-    """Stop Snakemake and every job it started, then wait for Snakemake: a job writes
-    atomically, so what it had not finished is simply missing, and the next run redoes it."""
-    import signal
-
-    jobs = _descendants(proc.pid)  # before Snakemake ends and they are reparented
-    for pid in jobs:
-        with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.kill(pid, signal.SIGTERM)
-    with contextlib.suppress(ProcessLookupError):
-        os.killpg(proc.pid, signal.SIGTERM)
-    try:
-        proc.wait(timeout=60)
-    except subprocess.TimeoutExpired:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
 
 
 def snakefile() -> str:
@@ -371,14 +351,14 @@ def _rederive(folder: Path) -> None:
 
     state, values, published = publish.read_folder(folder)
     derived = publish.rederive(state, values)
-    wrong = publish.differences(derived, published)
+    wrong = publish.differences(derived, published, str(folder / "looks.csv"))
     if wrong:
         raise CapeError(
             f"{folder / 'looks.csv'}: the re-derivation from values.csv differs in {len(wrong)} "
             f"place(s), first {wrong[0]}; the published data do not give the published looks"
         )
     rows = derived[["claim", "comparison"]].drop_duplicates().shape[0]
-    exact = derived.to_csv(index=False) == (folder / "looks.csv").read_text()
+    exact = derived.to_csv(index=False).encode() == (folder / "looks.csv").read_bytes()
     print(
         f"cape question --from {folder}: {len(derived)} looks of {rows} rows re-decided from "
         f"values.csv; every decision {'and number identical to' if exact else 'equal to'} "
@@ -404,7 +384,7 @@ def _publish(args: argparse.Namespace, folder: Path) -> None:
         )
     files = [*DEFAULT_FILES[: 1 if args.no_question_config else 2], *args.configfile]
     config = merged_config(files)
-    state = QuestionState.parse(json.loads((source / "looks.json").read_text()))
+    state = QuestionState.load(source / "looks.json", "run `cape question` again: it rewrites it")
     names = [n for n in publish.COPIED if n not in missing]
     _claim(args, *(Output(folder / n, "published question", option="--publish") for n in
                    [*names, *publish.DRAWN, paths.QUESTION_PROVENANCE]))  # fmt: skip

@@ -3,8 +3,10 @@
 ``cape rollout`` writes a run folder (``RUN_FILES``) in one rename; every reader goes through
 ``read_metrics``, ``read_timing`` and ``read_series``, which refuse a folder whose files do not
 fit (schema ``cape/schemas/metrics.schema.yaml``, checksums, run). Every refusal is a
-``CapeError`` naming the run folder and the fix: delete the folder and rerun (Snakemake then
-recomputes exactly that run). The checks per file: docs/modules.md.
+``CapeError`` naming the run folder and the fix (``run_fix``): for one of the workflow's run
+folders, `snakemake --force` of its metrics.json (Snakemake replaces exactly that run's files);
+for any other folder, that it is no run the workflow made. No refusal suggests deleting a folder:
+the one named may be a user's. The checks per file: docs/modules.md.
 """
 
 from __future__ import annotations
@@ -52,10 +54,23 @@ def write_timing(folder: Path, timing: Mapping[str, Any], series_sha256: str) ->
     )
 
 
-def _fix(folder: Path) -> str:
+def run_fix(folder: Path) -> str:
+    """What to do about a run folder whose files do not fit: for one of the workflow's, recompute
+    it (`snakemake --force` replaces the rule's own outputs, nothing else); for any other (a file
+    at the checkout's root, a user's folder), say that it is no run the workflow made. Never
+    "delete": the folder may be the user's (issue 61)."""
+    try:
+        RunId.parse(folder / paths.METRICS)
+    except ValueError:
+        layout = "/".join(RunId.wildcards().parts()).replace("{", "<").replace("}", ">")
+        return (
+            f"the folder {folder} is not one of the workflow's run folders (…/{layout}), so it "
+            "holds no run the workflow made and nothing here recomputes it; give the metrics.json "
+            "of a run, or make one with `cape rollout --out NEW_FOLDER`"
+        )
     return (
-        f"delete the run folder (`rm -r {folder}`) and run snakemake again, which recomputes "
-        "that run"
+        f"recompute that run: `snakemake --cores 1 --force {folder / paths.METRICS}` (Snakemake "
+        "replaces the run's own files)"
     )
 
 
@@ -77,7 +92,7 @@ def read_metrics(path: Path, expected: RunId | None = None) -> dict[str, Any]:
     """A run's ``metrics.json`` (``path``), checked against its schema, its checksum and the
     run ``expected`` (default: the run its folder names, if it names one)."""
     folder = path.parent
-    fix = _fix(folder)
+    fix = run_fix(folder)
     metrics = _read_json(path, f"missing; run it (`snakemake --cores 1 {path}`)", fix)
     errors = list(_validator().iter_errors(metrics))
     if errors:
@@ -120,7 +135,7 @@ def read_timing(folder: Path) -> dict[str, Any]:
     """A run's ``timing.json``, checked against the checksum it carries: its solve times (None
     where the controller solves nothing) and the digest of its series."""
     path = folder / paths.TIMING
-    fix = _fix(folder)
+    fix = run_fix(folder)
     timing = _read_json(path, f"missing (the run's files are incomplete); {fix}", fix)
     if not isinstance(timing, dict) or not isinstance(timing.get(SERIES_KEY), str):
         raise CapeError(f"{path}: not a run's timing as `cape rollout` writes it; {fix}")
@@ -144,7 +159,7 @@ def verify_series(folder: Path, timing: Mapping[str, Any]) -> bytes:
     """The bytes of a run's ``timeseries.parquet``, refused unless they are the series its
     ``timing.json`` recorded (the aggregation checks every run, so that a damaged run stops
     it, not a notebook)."""
-    path, fix = folder / paths.SERIES, _fix(folder)
+    path, fix = folder / paths.SERIES, run_fix(folder)
     try:
         data = path.read_bytes()
     except FileNotFoundError:

@@ -75,8 +75,8 @@ def load_model(folder: str | Path, expected_name: str | None = None) -> LearnedM
             if recorded
             else "has no checksum in meta.json"
         )
-        raise CapeError(f"{weights}: {why}; delete the model folder and train it again "
-                        f"(`snakemake --cores 1 {weights}`)")  # fmt: skip
+        raise CapeError(f"{weights}: {why}; train it again (`snakemake --cores 1 --force "
+                        f"{weights}`, which replaces the training's own files)")  # fmt: skip
     try:
         state = torch.load(weights, map_location="cpu", weights_only=True)
     except FileNotFoundError:

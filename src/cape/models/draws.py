@@ -296,7 +296,8 @@ def given_trainings(model: str, folders: Sequence[Path]) -> list[Training]:
         if not _is_int(meta.get("seed")):
             raise CapeError(
                 f"{folder / paths.META}: field 'seed' is {_shown(meta.get('seed'))}, not an "
-                "integer; delete the folder and train again"
+                "integer; train it again (`snakemake --cores 2 --force "
+                f"{folder / paths.WEIGHTS}`)"
             )
         training = Training(folder, meta, digest)
         for earlier in given:
@@ -326,10 +327,11 @@ def train_loss(folder: str | Path) -> list[float]:
     health check reads it."""
     from cape.storage.io import read_csv
 
+    again = f"train the model again (`snakemake --cores 2 --force {Path(folder) / paths.WEIGHTS}`)"
     losses = read_csv(
         Path(folder) / paths.LOSSES,
         "train the model first (snakemake does)",
-        "not a loss curve ({reason}); delete the model folder and train again",
+        "not a loss curve ({reason}); " + again.replace("{", "{{").replace("}", "}}"),
     )
     if "train_loss" not in losses:
         raise CapeError(

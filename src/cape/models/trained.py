@@ -53,6 +53,13 @@ class TrainedModel:
         return np.array(nxt, dtype=np.float64)
 
 
+def _train_again(meta: Path) -> str:
+    """The fix for a model folder whose files do not fit: train it again; Snakemake's --force
+    replaces the training's own files. Never "delete the folder": it may be a user's (issue 61)."""
+    weights = Path(meta).parent / paths.WEIGHTS
+    return f"train it again (`snakemake --cores 2 --force {weights}`, which replaces its files)"
+
+
 def read_meta(folder: str | Path) -> dict[str, Any]:
     """A model folder's ``meta.json``, checked for its format version."""
     path = Path(folder) / paths.META
@@ -63,16 +70,12 @@ def read_meta(folder: str | Path) -> dict[str, Any]:
             f"{path}: missing; train the model first (snakemake --cores 2 {path})"
         ) from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise CapeError(
-            f"{path}: corrupt ({exc}); delete the model folder and train again"
-        ) from exc
+        raise CapeError(f"{path}: corrupt ({exc}); {_train_again(path)}") from exc
     if not isinstance(meta, dict):
-        raise CapeError(f"{path}: corrupt (not a JSON object); delete the folder and train again")
+        raise CapeError(f"{path}: corrupt (not a JSON object); {_train_again(path)}")
     missing = [k for k in ("name", "spec", "ts") if k not in meta]
     if missing:
-        raise CapeError(
-            f"{path}: lacks {', '.join(missing)}; delete the model folder and train it again"
-        )
+        raise CapeError(f"{path}: lacks {', '.join(missing)}; {_train_again(path)}")
     if meta.get("format") != FORMAT_VERSION:
         raise CapeError(
             f"{path}: checkpoint format {meta.get('format')!r}, expected {FORMAT_VERSION}; retrain"
@@ -92,9 +95,9 @@ def read_training(folder: str | Path) -> tuple[Any, dict[str, Any]]:
     folder = Path(folder)
     meta = read_meta(folder)
     path = folder / paths.LOSSES
-    weights = f"{folder}/{paths.WEIGHTS}"
-    fix = f"delete the model folder and train it again (`snakemake --cores 2 {weights}`)"
-    losses = read_csv(path, fix, "not a loss curve ({reason}); " + fix.replace("{", "{{"))
+    fix = _train_again(folder / paths.META)
+    escaped = fix.replace("{", "{{").replace("}", "}}")  # a template: {reason} is filled in
+    losses = read_csv(path, fix, "not a loss curve ({reason}); " + escaped)
     missing = [c for c in LOSS_COLUMNS if c not in losses]
     if missing or losses.empty:
         what = f"lacks the column(s) {', '.join(missing)}" if missing else "has no epoch"

@@ -203,8 +203,27 @@ def _check_owner(out: Output, record: Path) -> None:
     else:
         what = "a file"
     raise _refuse(out, f"is {what} that CAPE did not write as {out.described()} (no owner record "
-                       f"{record.name} says so); give another path, or delete it first if you "
-                       "mean to replace it")  # fmt: skip
+                       f"{record.name} says so), and CAPE replaces only what it wrote; give "
+                       "another path")  # fmt: skip
+
+
+UNWRITABLE = {errno.EACCES, errno.EPERM, errno.EROFS}
+"""What opening a new file says in a folder that cannot be written: another user's, a
+read-only mount, or an immutable folder (``chattr +i``)."""
+
+
+def _unopenable(record: Path, exc: OSError) -> str:
+    """Why the owner record ``record`` cannot be opened, in the refusal's words: the folder
+    cannot be written (the usual reason), a symbolic link planted as the record, or what the
+    system said."""
+    said = exc.strerror or str(exc)
+    if exc.errno == errno.ELOOP:
+        return (f"its owner record {record} is a symbolic link, not a plain file CAPE wrote; "
+                "give another path")  # fmt: skip
+    if exc.errno in UNWRITABLE:
+        return (f"its folder {record.parent} cannot be written ({said}: read-only, immutable "
+                "or not yours); make it writable, or give another path")  # fmt: skip
+    return f"its owner record {record} cannot be opened ({said}); give another path"
 
 
 def _lock(out: Output, record: Path) -> int:
@@ -218,12 +237,12 @@ def _lock(out: Output, record: Path) -> int:
         except FileNotFoundError:  # its folder removed meanwhile by a failed claim: again
             record.parent.mkdir(parents=True, exist_ok=True)
             continue
-        except OSError as exc:  # ELOOP: a symbolic link planted as the record
-            why = f"its owner record {record.name} is not a plain file ({exc.strerror})"
-            raise _refuse(out, f"{why}; remove it") from None
+        except OSError as exc:
+            raise _refuse(out, _unopenable(record, exc)) from None
         if not stat.S_ISREG(os.fstat(fd).st_mode):
             os.close(fd)
-            raise _refuse(out, f"its owner record {record.name} is not a plain file; remove it")
+            raise _refuse(out, f"its owner record {record} is not a plain file CAPE wrote; give "
+                               "another path")  # fmt: skip
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

@@ -21,7 +21,7 @@ from scipy import stats
 from cape.errors import CapeError
 from cape.layout import paths
 from cape.layout.names import TRUTH
-from cape.layout.record import read_metrics, read_timing, verify_series
+from cape.layout.record import read_metrics, read_timing, run_fix, verify_series
 from cape.layout.runs import RunId
 from cape.storage.integrity import KEY
 
@@ -65,7 +65,7 @@ class CurrentModels:
 def check_models(metrics: Mapping[str, Any], folder: Path, current: CurrentModels) -> None:
     """A run must record the trained networks it was computed with, and they must be its
     replicate's current models (cape.closedloop.provenance)."""
-    fix = f"the run is stale: delete it (`rm -r {folder}`) and rerun the target that needs it"
+    fix = f"the run is stale: {run_fix(folder)}"
     recorded = metrics.get("models")
     plant = str(metrics["plant"])
     if recorded is None:

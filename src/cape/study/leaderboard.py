@@ -21,8 +21,9 @@ from cape.study.claims import FAILURES, NMPCS, Selection, at_eta, both, controll
 from cape.study.verdicts import (
     EQUIVALENT,
     INCONCLUSIVE,
-    NONE,
     POINT,
+    Interval,
+    UnusableEffectsError,
     class_interval,
     draws_needed,
     equivalence_p,
@@ -108,8 +109,19 @@ def per_seed(runs: pd.DataFrame, metric: Metric) -> dict[tuple[str, int], pd.Ser
     return out
 
 
+def _span(values: Mapping[int, Sequence[float]], study_draws: int) -> Interval | None:
+    """``class_interval`` of ``values``; None where it refuses them (an infinite value, or
+    values whose arithmetic overflows: a broken run, which the table says for what it is)."""
+    try:
+        return class_interval(values, study_draws)
+    except UnusableEffectsError:
+        return None
+
+
 def _span_text(values: Mapping[int, Sequence[float]], study_draws: int) -> tuple[float, str]:
-    span = class_interval(values, study_draws)
+    span = _span(values, study_draws)
+    if span is None:
+        return math.nan, "not usable"
     if math.isnan(span.estimate):
         return math.nan, "–"
     if span.unit == POINT:
@@ -133,10 +145,8 @@ def _unusable(
     if metric.column == FAILURES:
         return ""  # counts of failed runs: always finite
     mine = {r: list(v) for (m, r), v in values.items() if m == model}
-    span = class_interval(mine, study_draws)
-    results = [] if span.unit == NONE else [span.estimate, span.low, span.high]
     seeds = [v for vs in mine.values() for v in vs]
-    if not (np.isinf(seeds).any() or not np.isfinite(results).all()):
+    if not np.isinf(seeds).any() and _span(mine, study_draws) is not None:
         return ""
     chosen = metric.select(runs)
     chosen = chosen[chosen["model"] == model]
@@ -293,11 +303,11 @@ def _against(
         common = mine.index.intersection(other.index)
         if len(common):
             effects[r] = list((mine[common] - other[common]).astype(float))
-    span = class_interval(effects, study_draws)
-    if math.isnan(span.estimate):
+    span = _span(effects, study_draws)
+    if span is not None and math.isnan(span.estimate):
         why = f"no draw and seed in common with {reference.upper()}"
         return {**nothing, "verdict vs reference": INCONCLUSIVE, "draws needed": "", "why": why}
-    if not np.isfinite([span.estimate, span.low, span.high]).all():  # an inf never decides
+    if span is None:  # an inf never decides
         why = f"the effect against {reference.upper()} overflows (its values are too large)"
         return {**nothing, "verdict vs reference": INCONCLUSIVE, "draws needed": "", "why": why}
     if span.unit == POINT:

@@ -288,12 +288,19 @@ def next_seeds(
     """The seeds of the next stage's draws, the open rows' components behind them, and a
     sentence saying how they were chosen: ``payoff`` at the measured costs (``cost``: a
     ``question_report.Cost``), within [``settings.least_seeds``, ``most``]; the study's seeds
-    where a cost is not measured."""
+    where a cost is not measured. ``question.seeds.least`` always holds, above the study's
+    seeds or ``most`` too (it was lowered to them without a word: issue 61)."""
+    least = settings.least_seeds
     per_draw = {m: cost.per_draw(m) for m in settings.models}
     per_seed = cost.per_seed()
     if not math.isfinite(per_seed) or any(not math.isfinite(c) for c in per_draw.values()):
+        if least > settings.seeds:
+            return least, None, (
+                f"`question.seeds.least`'s {least}, above the study's {settings.seeds} (a cost "
+                "is not measured)"
+            )  # fmt: skip
         return settings.seeds, None, f"the study's {settings.seeds} (a cost is not measured)"
-    least = min(settings.least_seeds, most)
+    most = max(most, least)  # a published stage's most (cape question --reuse) may be lower
     chosen, frame = payoff(states, design, stage, draws, per_draw, per_seed, least, most)
     said = (
         f"{chosen} for the draws after {design.looks[stage]}: of {least} … {most} (the most "

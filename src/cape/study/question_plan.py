@@ -71,8 +71,6 @@ class QuestionSettings:
                 )
             )
         stages = tuple(int(s) for s in q.get("stages") or ())
-        if not stages or any(b <= a for a, b in itertools.pairwise(stages)):
-            raise CapeError(f"{source}: field `question.stages` must increase: {list(stages)}")
         missing = [c for c in NMPCS if c not in config["controllers"]]
         if missing:
             raise CapeError(
@@ -87,18 +85,7 @@ class QuestionSettings:
         least = int(seeds_of.get("least", schema_default("question.seeds.least")))
         most = seeds_of.get("most")
         stride = int(schema_default("study.seed_stride") if stride is None else stride)
-        for key, value in (("least", least), ("most", most)):
-            if value is not None and int(value) > stride:
-                raise CapeError(
-                    f"{source}: field `question.seeds.{key}` is {value}, more than "
-                    f"`study.seed_stride` ({stride}): a draw's seeds would reach the next "
-                    "draw's; lower it or raise the stride"
-                )
-        if most is not None and int(most) < least:
-            raise CapeError(
-                f"{source}: field `question.seeds.most` ({most}) is below `question.seeds.least` "
-                f"({least}); set most to at least {least}"
-            )
+        _check_rule(stages, least, None if most is None else int(most), stride, source)
         futility = q.get("futility", schema_default("question.futility"))
         return cls(
             models,
@@ -120,23 +107,55 @@ class QuestionSettings:
 
     @classmethod
     def from_identity(cls, design: Mapping[str, Any]) -> QuestionSettings:
-        """The settings a recorded design (``identity``) was made from; ``KeyError`` or
-        ``TypeError`` where it is not one."""
-        rule = design["seed rule"]
-        return cls(
-            tuple(str(m) for m in design["models"]),
-            tuple(int(n) for n in design["stages"]),
-            float(design["alpha"]),
-            float(design["spending"]),
-            {str(k): float(v) for k, v in design["margins"].items()},
-            str(design["study"]),
-            tuple(str(e) for e in design["etas"]),
-            int(design["seeds"]),
-            int(rule["least"]),
-            int(rule["stride"]),
-            float(design["futility"]),
-            None if rule["most"] is None else int(rule["most"]),
-        )
+        """The settings a recorded design (``identity``) was made from; ``ValueError`` naming
+        the field where it is not one: a key missing, a value of the wrong type, or one outside
+        the config schema's bounds (``check_identity``: no look at 10¹² draws, whose
+        boundaries would never be computed, no margin of −100 %)."""
+        try:
+            rule = design["seed rule"]
+            settings = cls(
+                tuple(str(m) for m in design["models"]),
+                tuple(int(n) for n in design["stages"]),
+                float(design["alpha"]),
+                float(design["spending"]),
+                {str(k): float(v) for k, v in design["margins"].items()},
+                str(design["study"]),
+                tuple(str(e) for e in design["etas"]),
+                int(design["seeds"]),
+                int(rule["least"]),
+                int(rule["stride"]),
+                float(design["futility"]),
+                None if rule["most"] is None else int(rule["most"]),
+            )
+        except KeyError as exc:
+            raise ValueError(f"field `{exc.args[0]}` is missing") from None
+        except (TypeError, ValueError, OverflowError, AttributeError) as exc:
+            raise ValueError(f"a field is not of its type ({exc})") from None
+        settings.check_identity()
+        return settings
+
+    def check_identity(self) -> None:
+        """``ValueError`` where these settings lie outside what the config's schema and
+        ``from_config`` allow (a recorded design is read without the schema)."""
+        from cape.config import validate_config
+
+        fragment = {
+            "question": {
+                "models": list(self.models),
+                "stages": list(self.stages),
+                "alpha": self.alpha,
+                "spending": self.spending,
+                "futility": self.futility,
+                "seeds": {"least": self.least_seeds, "most": self.most_seeds},
+            },
+            "scorecard": {"margins": dict(self.margins)},
+            "study": {"seeds": self.seeds, "seed_stride": self.seed_stride},
+        }
+        try:
+            validate_config(fragment, "the design", partial=True)
+            _check_rule(self.stages, self.least_seeds, self.most_seeds, self.seed_stride, "design")
+        except CapeError as exc:
+            raise ValueError(str(exc).split(". Fix the value")[0]) from None
 
     def draw_seeds(self, replicate: int, count: int) -> range:
         """Draw ``replicate``'s first ``count`` disturbance seeds, r·seed_stride + 0 … count − 1:
@@ -188,6 +207,26 @@ class QuestionSettings:
                 "stride": self.seed_stride,
             },
         }
+
+
+def _check_rule(
+    stages: tuple[int, ...], least: int, most: int | None, stride: int, source: str
+) -> None:
+    """The cross-field rules of the looks and the seed rule; ``CapeError`` naming the field."""
+    if not stages or any(b <= a for a, b in itertools.pairwise(stages)):
+        raise CapeError(f"{source}: field `question.stages` must increase: {list(stages)}")
+    for key, value in (("least", least), ("most", most)):
+        if value is not None and value > stride:
+            raise CapeError(
+                f"{source}: field `question.seeds.{key}` is {value}, more than "
+                f"`study.seed_stride` ({stride}): a draw's seeds would reach the next "
+                "draw's; lower it or raise the stride"
+            )
+    if most is not None and most < least:
+        raise CapeError(
+            f"{source}: field `question.seeds.most` ({most}) is below `question.seeds.least` "
+            f"({least}); set most to at least {least}"
+        )
 
 
 @dataclass(frozen=True)

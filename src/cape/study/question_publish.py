@@ -51,6 +51,7 @@ def draw(folder: Path) -> None:
 
 
 REQUIRED = ("looks.csv", "looks.json", "values.csv")
+REPUBLISH = "`cape question --publish FOLDER` copies them from results/question/"
 NUMERIC = ("estimate", "se", "low", "high", "equivalence_low", "equivalence_high", "chance")
 TOLERANCE = 1e-9
 """Relative difference a re-derived number may have from the published one (another CPU's
@@ -95,7 +96,13 @@ def draw_record(r: int, meta: Mapping[str, Any], seeds: Iterable[int]) -> dict[s
 def provenance(config: Mapping[str, Any], state: QuestionState) -> dict[str, Any]:
     """What made a question's answer: commit, config digest, machine, each model's draws with
     their training seeds (failed ones too) and disturbance seeds, and every stage's cost."""
-    settings = QuestionSettings.from_identity(state.design)
+    try:
+        settings = QuestionSettings.from_identity(state.design)
+    except ValueError as exc:
+        raise CapeError(
+            f"looks.json: its design is not one `cape question` records ({exc}); run `cape "
+            "question` again, which rewrites it"
+        ) from exc
     last = state.looks[-1] if state.looks else {}
     draws: dict[str, list[dict[str, Any]]] = {}
     for model, count in (last.get("draws") or {}).items():
@@ -136,10 +143,7 @@ def read_folder(folder: Path) -> tuple[QuestionState, pd.DataFrame, pd.DataFrame
                 f"{folder / name} not found: a published question holds {', '.join(REQUIRED)} "
                 "(`cape question --publish` writes them)"
             )
-    try:
-        state = QuestionState.parse(json.loads((folder / "looks.json").read_text()))
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise CapeError(f"{folder / 'looks.json'}: not a question's record ({exc!r})") from exc
+    state = QuestionState.load(folder / "looks.json", f"publish it again ({REPUBLISH})")
     try:
         values = pd.read_csv(folder / "values.csv")
         looks = pd.read_csv(folder / "looks.csv", keep_default_na=False, na_values=[""])
@@ -153,33 +157,70 @@ def read_folder(folder: Path) -> tuple[QuestionState, pd.DataFrame, pd.DataFrame
 
 def rederive(state: QuestionState, values: pd.DataFrame) -> pd.DataFrame:
     """Every look re-decided from the per-(model, draw, seed) values and the recorded design,
-    the stages' draws and the most seeds each stage assumed: looks.csv's table."""
+    the stages' draws and the most seeds each stage assumed: looks.csv's table. ``CapeError``
+    naming looks.json where its design or a stage's line is not one `cape question` records
+    (``QuestionSettings.from_identity`` bounds the design as the config's schema does)."""
     try:
         settings = QuestionSettings.from_identity(state.design)
-    except (KeyError, TypeError, ValueError) as exc:
+        design = settings.design()
+        states = [RowState(row) for row in settings.rows()]
+    except (KeyError, TypeError, ValueError, OverflowError, AttributeError) as exc:
+        why = f"`{exc.args[0]}` is missing" if isinstance(exc, KeyError) else str(exc)
         raise CapeError(
-            f"looks.json: its design is not one `cape question` records ({exc!r})"
+            f"looks.json: its design is not one `cape question` records ({why}); {REPUBLISH}"
         ) from exc
-    design = settings.design()
-    states = [RowState(row) for row in settings.rows()]
     per_seed = values_from_frame(values)
     for k, line in enumerate(state.looks):
-        if k >= len(design.looks) or int(line["look at draws"]) != design.looks[k]:
+        if k >= len(design.looks) or line.get("look at draws") != design.looks[k]:
             raise CapeError(f"looks.json: stage {k + 1} is not the design's look {k + 1}")
         evaluate(per_seed, states, design, k, line.get("most seeds"))
     return looks_frame(states)
 
 
-def differences(derived: pd.DataFrame, published: pd.DataFrame) -> list[str]:
-    """Where the re-derived looks differ from the published ones: a row or look missing, a
-    decision, or a number beyond ``TOLERANCE`` (both NaN is equal)."""
-    key = ["claim", "comparison", "look"]
+KEY = ("claim", "comparison", "look")
+"""What names a row of looks.csv: its claim, its comparison and the look."""
+
+
+def _number(value: Any, where: str, column: str, source: str) -> float:
+    """A number of looks.csv (empty: NaN); ``CapeError`` naming the cell where it is none."""
+    if isinstance(value, str) and not value.strip():
+        return math.nan
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise CapeError(
+            f"{source}: {where}: `{column}` is {value!r}, not a number; the file is not the "
+            f"looks.csv `cape question` wrote ({REPUBLISH})"
+        ) from None
+
+
+def differences(
+    derived: pd.DataFrame, published: pd.DataFrame, source: str = "looks.csv"
+) -> list[str]:
+    """Where the re-derived looks differ from the published ones (``source``: the published
+    file, for a refusal): a row or look missing, a decision, or a number beyond ``TOLERANCE``
+    (both NaN is equal). ``CapeError`` where the published table is not one looks.csv can be:
+    a column missing, a row named twice, a number that is none."""
+    missing = [c for c in (*KEY, "decision") if c not in published.columns]
+    if missing:
+        raise CapeError(
+            f"{source}: lacks the column(s) {', '.join(missing)}; the file is not the looks.csv "
+            f"`cape question` wrote ({REPUBLISH})"
+        )
+    published = published.assign(look=[_look(v, source) for v in published["look"]])
+    repeated = published.duplicated(list(KEY))
+    if repeated.any():
+        first = published.loc[repeated.idxmax(), list(KEY)]
+        raise CapeError(
+            f"{source}: the row {' / '.join(map(str, first))} is there twice; the file is not "
+            f"the looks.csv `cape question` wrote ({REPUBLISH})"
+        )
     out = []
-    a = derived.set_index(key)
-    b = published.set_index(key)
+    a = derived.set_index(list(KEY))
+    b = published.set_index(list(KEY))
     for name in sorted(set(a.index) ^ set(b.index), key=str):
         out.append(f"{' / '.join(map(str, name))}: in one table only")
-    for name in a.index.intersection(b.index):
+    for name in a.index.intersection(b.index, sort=False):
         ra, rb = a.loc[name], b.loc[name]
         where = f"{name[0]} ({name[1]}), look {name[2]}"
         if str(ra["decision"]) != str(rb["decision"]):
@@ -187,12 +228,26 @@ def differences(derived: pd.DataFrame, published: pd.DataFrame) -> list[str]:
         for column in NUMERIC:
             if column not in a.columns or column not in b.columns:
                 continue
-            x, y = float(ra[column]), float(rb[column])
+            x, y = float(ra[column]), _number(rb[column], where, column, source)
             if math.isnan(x) and math.isnan(y):
                 continue
             if not math.isclose(x, y, rel_tol=TOLERANCE, abs_tol=1e-12):
                 out.append(f"{where}: {column} published {y!r}, re-derived {x!r}")
     return out
+
+
+def _look(value: Any, source: str) -> Any:
+    """A look's number as looks.csv holds it (an integer); ``CapeError`` where it is none."""
+    try:
+        number = float(value)
+        if number.is_integer():
+            return int(number)
+    except (TypeError, ValueError, OverflowError):
+        pass
+    raise CapeError(
+        f"{source}: a row's `look` is {value!r}, not a look's number; the file is not the "
+        f"looks.csv `cape question` wrote ({REPUBLISH})"
+    )
 
 
 class Published:
@@ -201,15 +256,14 @@ class Published:
     values of it on exactly the seeds the plan gives it."""
 
     def __init__(self, folder: Path, design: Mapping[str, Any]) -> None:
-        from cape.study.question_state import changed_keys
+        from cape.study.question_state import design_change
 
         self.folder = folder
         self.state, values, _ = read_folder(folder)
         if self.state.design != design:
-            key, was, now = changed_keys(self.state.design, design)[0]
             raise CapeError(
-                f"{folder / 'looks.json'}: published under another design (`{key}` was "
-                f"{json.dumps(was)}, now {json.dumps(now)}); only the same question's draws "
+                f"{folder / 'looks.json'}: published under another design "
+                f"({design_change(self.state.design, design)}); only the same question's draws "
                 "can be reused"
             )
         self.values = values_from_frame(values)

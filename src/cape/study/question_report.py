@@ -37,7 +37,10 @@ def draw_meta(model: str, replicate: int) -> dict[str, Any]:
     path = Path(paths.model_dir(model, replicate), paths.META)
     if not path.is_file():
         return {}
-    return read_json(path, "a draw's metadata", "delete the draw's folder and run again")
+    weights = Path(paths.model_dir(model, replicate), paths.WEIGHTS)
+    fix = (f"make the draw again (`snakemake --cores 2 --force {weights}`, which replaces the "
+           "draw's own files), then run the command again")  # fmt: skip
+    return read_json(path, "a draw's metadata", fix)
 
 
 def read_stage_runs(settings: QuestionSettings, plan: Plan) -> pd.DataFrame | None:
@@ -112,12 +115,13 @@ class Cost:
 def most_seeds(settings: QuestionSettings, cost: Cost) -> int:
     """The most seeds a later draw may get: ``question.seeds.most``, else as many as cost what
     a draw costs (its training and solvers over one seed's runs, the mean over the models), at
-    least the study's seeds and at most the seed stride."""
+    least the study's seeds and ``question.seeds.least`` (never below the least asked for:
+    issue 61), at most the seed stride."""
     if settings.most_seeds is not None:
         return settings.most_seeds
     ratio = cost.cost_ratio()
     most = settings.seeds if ratio is None else max(settings.seeds, math.floor(ratio))
-    return min(most, settings.seed_stride)
+    return min(max(most, settings.least_seeds), settings.seed_stride)
 
 
 def _cpu(path: Path) -> float | None:

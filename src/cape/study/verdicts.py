@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from cape.errors import CapeError
+
 HOLDS, CONTRADICTED, INCONCLUSIVE = "holds", "contradicted", "inconclusive"
 EQUIVALENT = "equivalent"
 """No practical difference: the two one-sided tests put the effect inside ±margin (SPEC §10,
@@ -51,14 +53,38 @@ class Interval:
         return self.low <= 0.0 <= self.high
 
 
+class UnusableEffectsError(CapeError, ValueError):
+    """Effects no interval can summarise: a value that is infinite, or values so large that
+    their mean, spread or interval overflows (1e308 and −1e308: a mean of 0 inside ±inf).
+    Screen such values first (a broken run: cape.study.leaderboard does); a ``CapeError``, so
+    that a command that meets one says it in one line."""
+
+
 def _groups(effects: Mapping[int, Sequence[float]]) -> list[np.ndarray]:
-    """The finite values of each draw that has any."""
+    """The values of each draw that has any (a missing value, None or NaN, left out);
+    ``UnusableEffectsError`` for an infinite one."""
     groups = []
-    for values in effects.values():
-        x = np.asarray([v for v in values if v is not None and math.isfinite(v)], dtype=float)
+    for replicate, values in effects.items():
+        x = np.asarray([v for v in values if v is not None and not math.isnan(v)], dtype=float)
+        if np.isinf(x).any():
+            raise UnusableEffectsError(
+                f"draw {replicate}'s effect {x[np.isinf(x)][0]:g} is not a finite number, so no "
+                "interval can summarise it; screen such values (a broken run) first"
+            )
         if x.size:
             groups.append(x)
     return groups
+
+
+def _overflowed(numbers: Sequence[float], groups: Sequence[np.ndarray]) -> None:
+    """``UnusableEffectsError`` where a statistic of finite ``groups`` is not finite."""
+    if all(math.isfinite(v) for v in numbers):
+        return
+    largest = max(float(np.abs(g).max()) for g in groups)
+    raise UnusableEffectsError(
+        f"effects of magnitude up to {largest:.3g} cannot be summarised: their mean, spread or "
+        "interval overflows; screen such values (a broken run) first"
+    )
 
 
 def draw_effects(effects: Mapping[int, Sequence[float]]) -> dict[int, float]:
@@ -95,26 +121,30 @@ def interval(effects: Mapping[int, Sequence[float]], level: float = 0.95) -> Int
     """The effect's estimate and its ``level`` interval (``effects``: replicate → the effect's
     values, one per seed or one for the draw): Student's t over the draws' means with two or
     more draws, over the seeds with one; NaN without values; a point, with ``why``, from one
-    value or values that do not vary."""
+    value or values that do not vary. A missing value (None, NaN) is left out;
+    ``UnusableEffectsError`` (a ``ValueError``) for an infinite value, or for values whose
+    mean, spread or interval overflows."""
     groups = _groups(effects)
     values = sum(g.size for g in groups)
     if not groups:
         return Interval(math.nan, math.nan, math.nan, 0, 0, NONE, why="no values")
-    if len(groups) >= 2:
-        x, unit = np.array([g.mean() for g in groups]), DRAWS
-    else:
-        x, unit = groups[0], SEEDS
-    estimate = float(x.mean())
-    if x.size < 2:
-        return Interval(estimate, estimate, estimate, len(groups), values, POINT, why="one value")
-    if _no_spread(x):
-        why = f"no spread over {x.size} {unit}"
-        return Interval(estimate, estimate, estimate, len(groups), values, POINT, 0.0, why=why)
-    low, high, p = t_test(x, level)
-    return Interval(
-        estimate, float(low), float(high), len(groups), values, unit, float(x.std(ddof=1)),
-        float(p),
-    )  # fmt: skip
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused, not warned
+        if len(groups) >= 2:
+            x, unit = np.array([g.mean() for g in groups]), DRAWS
+        else:
+            x, unit = groups[0], SEEDS
+        estimate = float(x.mean())
+        _overflowed([estimate], groups)
+        if x.size < 2:
+            return Interval(estimate, estimate, estimate, len(groups), values, POINT,
+                            why="one value")  # fmt: skip
+        if _no_spread(x):
+            why = f"no spread over {x.size} {unit}"
+            return Interval(estimate, estimate, estimate, len(groups), values, POINT, 0.0, why=why)
+        low, high, p = t_test(x, level)
+        sd = float(x.std(ddof=1))
+        _overflowed([float(low), float(high), sd], groups)
+    return Interval(estimate, float(low), float(high), len(groups), values, unit, sd, float(p))
 
 
 def class_interval(

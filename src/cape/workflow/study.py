@@ -79,6 +79,17 @@ def refusals() -> Iterator[None]:
         raise SystemExit(1) from None
 
 
+def job_spec(job: str, text: str) -> str:
+    """The path of ``job``'s specification (``cape.workflow.specs.spec_file``), called from a
+    rule's params while Snakemake plans: a refusal (a file at its path that the workflow did not
+    write, a folder that cannot be written) is its one line on stderr and exit status 1, as in
+    ``refusals``. Snakemake would wrap it in an InputFunctionException with its stack frames; a
+    ``SystemExit`` it lets through, and stops (it plans before it locks the folder or starts a
+    job, and a stop while it runs cancels its jobs)."""
+    with refusals():
+        return specs.spec_file(job, text)
+
+
 class _MissingRecordError(Exception):
     """A health record a draw asks for is neither made nor being read (``draw_inputs``)."""
 
@@ -180,11 +191,11 @@ class StudyWorkflow:
     def notebook_spec(self, name: str) -> str:
         """Notebook ``name``'s specification: the config sections it declares it reads."""
         text = specs.sections(self.config, *NOTEBOOKS[name].reads)
-        return specs.spec_file(f"notebook_{name}", text)
+        return job_spec(f"notebook_{name}", text)
 
     def papermill_args(self, job: str, **parameters: Any) -> str:
         """``-f FILE``: a notebook's parameters, written as job ``job``'s specification."""
-        path = specs.spec_file(job, specs.notebook_parameters(parameters))
+        path = job_spec(job, specs.notebook_parameters(parameters))
         return f"-f {shlex.quote(path)}"
 
     # --- the model stage ---------------------------------------------------------------------
@@ -496,13 +507,15 @@ class StudyWorkflow:
         ]
 
     def question_targets(self) -> list[str]:
-        """Every file of the runs the question's current stage names, with their solvers."""
+        """Every file of the runs the question's current stage names, with their solvers. A
+        plan or question refused (a stage.yaml edited by hand: seeds that do not cover its
+        draws) is its one line on stderr, as in ``refusals``, not Snakemake's frames."""
         if not self.plan:
             return []
-        settings = QuestionSettings.from_config(self.config, SOURCE)
-        runs = [
-            self.grid.get(run, run) for run in stage_runs(settings, Plan.from_config(self.plan))
-        ]
+        with refusals():
+            settings = QuestionSettings.from_config(self.config, SOURCE)
+            plan = Plan.from_config(self.plan)
+        runs = [self.grid.get(run, run) for run in stage_runs(settings, plan)]
         return [*self.solver_outputs(runs), *self.run_outputs(runs)]
 
     def stale_summaries(self) -> list[str]:

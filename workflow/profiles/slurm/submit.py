@@ -15,17 +15,26 @@ group runs as many rollouts at once as it asked CPUs for, whatever the node show
 (many rollouts) is one submission named after its group; its SLURM log goes to
 ``results/logs/slurm/<group or rule>/<slurm job id>.log``.
 
-Every input (``sbatch`` on PATH, the properties, the resources) is checked before any file is
-changed; a bad one ends the script with one line on stderr and exit 2.
+A rule or group name is used in the log's path only as a safe folder name (any character but
+letters, digits, ``_``, ``-`` and ``.`` becomes ``_``, and a name of dots is not ``.`` or ``..``),
+so the log always lands inside ``results/logs/slurm``.
+
+Every input (``sbatch`` on PATH, the properties, the resources, ``CAPE_SLURM_SUBMIT_TIMEOUT``) is
+checked before any file is changed; a bad one ends the script with one line on stderr and exit 2.
+An ``sbatch`` that has not answered within ``CAPE_SLURM_SUBMIT_TIMEOUT`` seconds (default 60, as
+status.py waits for SLURM's commands) is stopped, and the job reported not submitted in one line.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import math
+import os
 import re
 import shlex
 import shutil
+import signal
 import subprocess
 import sys
 import traceback
@@ -37,6 +46,9 @@ LOG_ROOT = Path("results") / "logs" / "slurm"  # cape.layout.paths.log("slurm"),
 START_MINUTES = 1  # the job's own Snakemake: parsing the workflow before the first rule
 ALL_CORES = re.compile(r"--cores '?all'?(?=\s)")
 JOB_ID = re.compile(r"[0-9]+(_[0-9]+)?")
+UNSAFE = re.compile(r"[^A-Za-z0-9_.-]")  # what a log folder's name may not hold (/, %, …)
+SUBMIT_TIMEOUT = 60.0  # s: an sbatch that has not answered by then has not answered
+TIMEOUT_SETTING = "CAPE_SLURM_SUBMIT_TIMEOUT"
 ON_PATH = (
     "run snakemake on the cluster's login node, where SLURM's commands are, or add them to PATH"
 )
@@ -69,8 +81,26 @@ def properties(text: str, jobscript: Path) -> dict[str, Any]:
 
 
 def job_name(props: dict[str, Any]) -> str:
-    """The group's name for a group job, else the rule's."""
-    return str(props.get("groupid") if props.get("type") == "group" else props.get("rule"))
+    """The group's name for a group job, else the rule's, as one safe folder name: never a
+    path out of ``LOG_ROOT`` (``../``), nor a pattern sbatch would expand (``%``)."""
+    raw = str(props.get("groupid") if props.get("type") == "group" else props.get("rule"))
+    name = UNSAFE.sub("_", raw)
+    return name.replace(".", "_") if not name.strip(".") else name
+
+
+def submit_timeout() -> float:
+    """Seconds ``sbatch`` may take (``CAPE_SLURM_SUBMIT_TIMEOUT``, else ``SUBMIT_TIMEOUT``)."""
+    raw = os.environ.get(TIMEOUT_SETTING, "").strip()
+    if not raw:
+        return SUBMIT_TIMEOUT
+    try:
+        value = float(raw)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{TIMEOUT_SETTING}={raw!r} is not a number of seconds > 0: unset it "
+                         "or give one")  # fmt: skip
+    return value
 
 
 def _whole(value: Any) -> int | None:
@@ -124,9 +154,30 @@ def pin_cores(text: str, count: int, jobscript: Path) -> str:
     return ALL_CORES.sub(f"--cores {count}", text, count=1)
 
 
-def _submit(command: list[str]) -> tuple[str, tuple[int, str] | None]:
+def _run(command: list[str], timeout: float) -> subprocess.CompletedProcess[str] | None:
+    """``command``, finished; None when it had not within ``timeout`` s (then it, and whatever
+    it started, is killed: its own session)."""
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)  # fmt: skip
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.communicate(timeout=5)
+        return None
+    return subprocess.CompletedProcess(command, proc.returncode, out, err)
+
+
+def _submit(command: list[str], timeout: float, name: str) -> tuple[str, tuple[int, str] | None]:
     """The job id sbatch printed, or the exit code and the line that say why there is none."""
-    done = subprocess.run(command, capture_output=True, text=True)
+    done = _run(command, timeout)
+    if done is None:
+        return "", (1, f"sbatch gave no answer in {timeout:g} s ({TIMEOUT_SETTING}), so it was "
+                       "stopped and the job counts as not submitted; if `squeue --me --name "
+                       f"cape-{name}` shows it queued all the same, `scancel` it before rerunning "
+                       "snakemake")  # fmt: skip
     if done.returncode != 0:
         said = one_line(done.stderr) or one_line(done.stdout)
         return "", (max(done.returncode, 1), f"sbatch failed ({done.returncode}): {said}")
@@ -145,6 +196,7 @@ def main(argv: list[str]) -> int:
     try:  # every check first: a refused job leaves no file changed
         if shutil.which("sbatch") is None:
             raise ValueError(f"no `sbatch` on PATH to submit {jobscript} with: {ON_PATH}")
+        timeout = submit_timeout()
         text = jobscript.read_text()
         props = properties(text, jobscript)
         command = sbatch_command(props, jobscript)
@@ -155,7 +207,7 @@ def main(argv: list[str]) -> int:
     try:
         (LOG_ROOT / job_name(props)).mkdir(parents=True, exist_ok=True)  # sbatch makes none
         jobscript.write_text(pinned)
-        jobid, error = _submit(command)
+        jobid, error = _submit(command, timeout, job_name(props))
     except OSError as exc:
         jobid, error = "", (1, one_line(str(exc)))
     if error:  # not submitted: the job script as it was (sbatch copied it if it queued one)

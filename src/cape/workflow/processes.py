@@ -1,0 +1,68 @@
+"""Stopping a ``snakemake`` a command started, with every job it started.
+
+Snakemake starts each job in a session of its own, so signalling Snakemake's session (its process
+group) does not reach them: ``stop`` finds them in /proc (``descendants``) before Snakemake ends
+and they are reparented. Used by ``cape question`` (cape.cli.question) and
+benchmarks/scheduler_threads.py.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import subprocess
+import time
+from collections.abc import Iterable
+from pathlib import Path
+
+
+def descendants(pid: int) -> list[int]:
+    """Every process below ``pid`` (its children, theirs, …), from /proc; [] where there is
+    no /proc."""
+    parents: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            fields = stat.read_text().rsplit(")", 1)[1].split()  # the name may hold ")"
+            parents.setdefault(int(fields[1]), []).append(int(stat.parent.name))
+    found, todo = [], [pid]
+    while todo:
+        for child in parents.get(todo.pop(), []):
+            found.append(child)
+            todo.append(child)
+    return found
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie, ended and not yet reaped, does not)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    return "\nState:\tZ" not in status
+
+
+def _send(pids: Iterable[int], group: int, sig: int) -> None:
+    for pid in pids:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.kill(pid, sig)
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(group, sig)
+
+
+def stop(proc: subprocess.Popen, grace: float) -> None:
+    """Stop ``proc`` (started in a session of its own: ``start_new_session=True``) and every
+    process below it: SIGTERM, then SIGKILL to whatever still runs after ``grace`` seconds;
+    returns once ``proc`` has ended. A job writes atomically, so what it had not finished is
+    simply missing, and the next run redoes it."""
+    jobs = set(descendants(proc.pid))  # before proc ends and they are reparented
+    _send(jobs, proc.pid, signal.SIGTERM)
+    deadline = time.monotonic() + grace
+    with contextlib.suppress(subprocess.TimeoutExpired):
+        proc.wait(timeout=grace)
+    while any(_alive(pid) for pid in jobs) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    if proc.poll() is None or any(_alive(pid) for pid in jobs):
+        jobs |= set(descendants(proc.pid))
+        _send([pid for pid in jobs if _alive(pid)], proc.pid, signal.SIGKILL)
+        proc.wait()
