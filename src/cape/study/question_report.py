@@ -145,7 +145,7 @@ def training_cpu(model: str, seed: int, tsv: Path) -> float | None:
     from cape.errors import CapeError
     from cape.storage.io import read_benchmark, read_json
 
-    meta_path = Path(paths.training_dir(model, seed)) / "meta.json"
+    meta_path = Path(paths.training_dir(model, seed)) / paths.META
     try:
         meta = read_json(meta_path, "a training's meta.json", "its training reruns it")
     except CapeError:
