@@ -36,7 +36,7 @@ from pathlib import Path
 from _common import json_output, run
 
 from cape.errors import CapeError
-from cape.workflow.scheduler import threads_of
+from cape.processes import threads_of
 
 TOY = """\
 {bound}
