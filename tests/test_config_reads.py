@@ -1,5 +1,5 @@
 """The config dictionary is read in one place: cape.config (loading and validating it), the
-typed specifications' builders (cape/specs, cape/workflow/specs.py, any ``from_config``) and
+typed specifications' builders (cape/specs, cape/workflow/job_files.py, any ``from_config``) and
 nowhere else in src, the workflow's rules or the notebooks; the code below them takes a spec."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from cape.config import REPO_ROOT
 
 CONFIG_NAMES = {"config", "cfg"}
 BUILDERS = {"from_config"}
-ALLOWED = ("src/cape/config.py", "src/cape/specs/", "src/cape/workflow/specs.py")
+ALLOWED = ("src/cape/config.py", "src/cape/specs/", "src/cape/workflow/job_files.py")
 
 
 def _is_config(node: ast.AST) -> bool:

@@ -290,7 +290,7 @@ def test_the_aggregation_reads_a_shared_run_where_the_workflow_computed_it(tmp_p
     _write_run(tmp_path, "learned", "epm", "epm", "nmpc", "0", 0, True, 7.4, 0.02)
     _write_run(tmp_path, "ablation", "epm", "truth", "nmpc", "0", 0, True, 7.5, 0.03)
     out = tmp_path / "runs.parquet"
-    as_the_rule_passes_it = json.dumps(config)  # cape.workflow.specs.grid
+    as_the_rule_passes_it = json.dumps(config)  # cape.workflow.job_files.JobFiles.write_grid
     main(["aggregate", "--root", str(tmp_path), "--out", str(out), "--summary",
           str(tmp_path / "summary.parquet"), "--config-json", as_the_rule_passes_it])  # fmt: skip
     runs = pd.read_parquet(out)

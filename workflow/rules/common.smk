@@ -1,5 +1,5 @@
 # Shared: the config validated, and the study's workflow logic (cape.workflow.study), which the
-# rules call as W.<method>; job specifications are cape.workflow.specs.
+# rules call as W.<method>; each job's file (its --spec) from JOBS (cape.workflow.job_files).
 
 import os
 import shlex
@@ -9,7 +9,7 @@ from snakemake.io import report as in_report  # `report(` opening a line is Snak
 
 from cape.layout import paths
 from cape.study.outputs import WHOLE_STUDY_NOTEBOOKS
-from cape.workflow import specs
+from cape.workflow.job_files import JobFiles
 from cape.workflow.study import NOTEBOOKS as DECLARED
 from cape.workflow.study import RUN_FOLDER, RUN_LOG, RUN_STEM, TABLE_EXTS
 from cape.workflow.study import StudyWorkflow, prepare, refusals, run_notebook
@@ -22,6 +22,7 @@ with refusals():  # a bad config value: its one-line reason, no traceback
         outputs=lambda rule, **wildcards: [str(p).format(**wildcards) for p in getattr(rules, rule).output],
         health=lambda model, seed: checkpoints.training_health.get(model=model, training_seed=seed).output[0],
     )
+    JOBS = JobFiles(config)
 SCOPES = W.scopes
 CAPE_ENV = "../envs/cape.yaml"  # every rule's software environment for `--sdm conda`
 NOTEBOOKS = os.path.join(workflow.basedir, "notebooks")  # beside the Snakefile, whatever -d is
@@ -29,11 +30,6 @@ NOTEBOOKS = os.path.join(workflow.basedir, "notebooks")  # beside the Snakefile,
 
 wildcard_constraints:
     **W.constraints(),
-
-
-def job_spec(job, text):
-    """The path of a job's specification (cape.workflow.specs): its command reads the file."""
-    return specs.spec_file(job, text)
 
 
 def reported_figures(notebook, folder, caption, category):

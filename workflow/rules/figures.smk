@@ -10,7 +10,7 @@ rule figure_tracks:
         png=paths.figures("tracks_and_data.png"),
     params:
         data=" ".join(f"--data {shlex.quote(f'{t}={paths.dataset(t)}')}" for t in W.data_tracks),
-        spec=lambda wildcards: job_spec("figure_tracks", specs.sections(config, "tracks", "data")),
+        spec=lambda wildcards: JOBS.write_sections("figure_tracks", "tracks", "data"),
     conda:
         CAPE_ENV
     log:

@@ -12,7 +12,7 @@ rule train:
         meta=f"{paths.TRAINING}/{paths.META}",
         losses=f"{paths.TRAINING}/{paths.LOSSES}",
     params:
-        spec=lambda wildcards: job_spec("train", specs.training(config, wildcards.model, int(wildcards.training_seed))),
+        spec=lambda wildcards: JOBS.write_training(wildcards.model, int(wildcards.training_seed)),
         out=lambda wildcards, output: os.path.dirname(output.weights),
     threads: W.threads
     priority: lambda wildcards: W.training_priority(wildcards.model)
@@ -45,7 +45,7 @@ checkpoint training_health:
     output:
         f"{paths.TRAINING}/{paths.HEALTH}",
     params:
-        spec=lambda wildcards: job_spec("training_health", specs.health(config, wildcards.model)),
+        spec=lambda wildcards: JOBS.write_health("training_health", wildcards.model),
         folder=lambda wildcards, input: os.path.dirname(input.weights),
     conda:
         CAPE_ENV
@@ -76,7 +76,7 @@ rule draw:
         cap=W.draw_max_trainings,
         # the bar each consulted record's verdict is checked against (a changed bar re-decides
         # the draws), and the records' content (a record changed in place does)
-        spec=lambda wildcards: job_spec("draw", specs.health(config, wildcards.model)),
+        spec=lambda wildcards: JOBS.write_health("draw", wildcards.model),
         records=lambda wildcards, input: W.draw_records(getattr(input, "health", [])),
     conda:
         CAPE_ENV
@@ -95,7 +95,7 @@ rule freeze:
     output:
         f"{paths.MODEL}/{paths.FROZEN_PHI}",
     params:
-        spec=lambda wildcards: job_spec("freeze", specs.sections(config, "data")),
+        spec=lambda wildcards: JOBS.write_sections("freeze", "data"),
         folder=lambda wildcards, input: os.path.dirname(input.weights),
     conda:
         CAPE_ENV
@@ -115,7 +115,7 @@ rule export_network:
     localrule: True
     params:
         folder=lambda wildcards, input: os.path.dirname(input.weights),
-        spec=lambda wildcards: job_spec("export_network", specs.export(config)),
+        spec=lambda wildcards: JOBS.write_export(),
     conda:
         CAPE_ENV
     log:
@@ -136,7 +136,7 @@ rule openloop_table:
         tex=f"{paths.REPLICATE_TABLES}/table04_openloop_rmse.tex",
     params:
         models=lambda wildcards: W.model_args(int(wildcards.replicate)),
-        spec=lambda wildcards: job_spec("openloop_table", specs.sections(config, "data", "training")),
+        spec=lambda wildcards: JOBS.write_sections("openloop_table", "data", "training"),
     conda:
         CAPE_ENV
     log:
@@ -158,7 +158,7 @@ rule complexity_table:
         tex=f"{paths.REPLICATE_TABLES}/table01_model_complexity.tex",
     params:
         models=lambda wildcards: W.model_args(int(wildcards.replicate)),
-        spec=lambda wildcards: job_spec("complexity_table", specs.sections(config, "training")),
+        spec=lambda wildcards: JOBS.write_sections("complexity_table", "training"),
     conda:
         CAPE_ENV
     log:
@@ -181,7 +181,7 @@ rule figure_models:
         curves_png=paths.figures("training_curves.png"),
     params:
         models=W.model_args(),
-        spec=lambda wildcards: job_spec("figure_models", specs.sections(config, "data", "models")),
+        spec=lambda wildcards: JOBS.write_sections("figure_models", "data", "models"),
     conda:
         CAPE_ENV
     log:

@@ -24,7 +24,7 @@ rule notebook_question:
         notebook=paths.scoped(paths.QUESTION, "notebooks", "question.ipynb"),
         html=paths.scoped(paths.QUESTION, "notebooks", "question.html"),
     params:
-        nb=lambda wildcards, input: W.papermill_args(
+        nb=lambda wildcards, input: JOBS.write_parameters(
             "notebook_question",
             looks_path=input.looks,
             figure_dir=paths.scoped(paths.QUESTION, "figures"),
@@ -36,4 +36,4 @@ rule notebook_question:
         paths.scoped(paths.QUESTION, "logs", "notebook_question.log"),
     localrule: True
     shell:
-        run_notebook("{params.nb}")
+        run_notebook("-f {params.nb:q}")

@@ -7,9 +7,7 @@ rule solver:
     output:
         paths.SOLVER,
     params:
-        spec=lambda wildcards: job_spec(
-            "solver", specs.rollout(config, wildcards.controller, wildcards.internal, solver=True)
-        ),
+        spec=lambda wildcards: JOBS.write_solver(wildcards.controller, wildcards.internal),
         models=lambda wildcards: W.model_folder_args(wildcards, [wildcards.internal]),
     conda:
         CAPE_ENV
@@ -30,9 +28,7 @@ rule rollout:
         timing=f"{RUN_FOLDER}/{paths.TIMING}",
         series=f"{RUN_FOLDER}/{paths.SERIES}",
     params:
-        spec=lambda wildcards: job_spec(
-            "rollout", specs.rollout(config, wildcards.controller, wildcards.plant, wildcards.internal)
-        ),
+        spec=lambda wildcards: JOBS.write_rollout(wildcards.controller, wildcards.plant, wildcards.internal),
         out=lambda wildcards, output: os.path.dirname(output.metrics),
         models=lambda wildcards: W.model_folder_args(wildcards, W.rollout_models(wildcards)),
         data=lambda wildcards, input: W.training_data_arg(input),
@@ -68,7 +64,7 @@ rule figure_rollout:
         pdf=f"{paths.ROLLOUT_FIGURES}/{RUN_STEM}.pdf",
         png=f"{paths.ROLLOUT_FIGURES}/{RUN_STEM}.png",
     params:
-        spec=lambda wildcards: job_spec("figure_rollout", specs.sections(config, "tracks", "data", "reference")),
+        spec=lambda wildcards: JOBS.write_sections("figure_rollout", "tracks", "data", "reference"),
         run=lambda wildcards, input: os.path.dirname(input.metrics),
     conda:
         CAPE_ENV

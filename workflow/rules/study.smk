@@ -15,7 +15,7 @@ rule aggregate:
         runs=paths.STUDY_RUNS,
         summary=paths.STUDY_SUMMARY,
     params:
-        spec=lambda wildcards: job_spec("aggregate", specs.grid(config)),
+        spec=lambda wildcards: JOBS.write_grid(),
         replicates=lambda wildcards: " ".join(map(str, SCOPES[wildcards.scope])),
         models=paths.MODELS,
     conda:
@@ -40,9 +40,9 @@ rule notebook_setup:
         notebook=paths.notebooks("setup.ipynb"),
         html=paths.notebooks("setup.html"),
     params:
-        nb=lambda wildcards: W.papermill_args(
+        nb=lambda wildcards: JOBS.write_parameters(
             "notebook_setup",
-            spec=W.notebook_spec("setup"),
+            spec=JOBS.write_notebook("setup"),
             figure_dir=paths.FIGURES,
             table_dir=paths.TABLES,
         ),
@@ -52,7 +52,7 @@ rule notebook_setup:
         paths.log("notebooks", "setup.log"),
     localrule: True
     shell:
-        run_notebook("{params.nb}")
+        run_notebook("-f {params.nb:q}")
 
 
 rule notebook_closed_loop:
@@ -73,10 +73,10 @@ rule notebook_closed_loop:
     wildcard_constraints:
         study=W.studies_of_kind("closed_loop"),
     params:
-        nb=lambda wildcards, input: W.papermill_args(
+        nb=lambda wildcards, input: JOBS.write_parameters(
             "notebook_closed_loop",
             study=wildcards.study,
-            spec=W.notebook_spec("closed_loop"),
+            spec=JOBS.write_notebook("closed_loop"),
             runs_path=input.runs,
             summary_path=input.summary,
             raceline=input.raceline,
@@ -91,7 +91,7 @@ rule notebook_closed_loop:
     benchmark:
         paths.benchmark("notebooks", "{study}.tsv")
     shell:
-        run_notebook("{params.nb}")
+        run_notebook("-f {params.nb:q}")
 
 
 rule notebook_bicycle:
@@ -109,10 +109,10 @@ rule notebook_bicycle:
     wildcard_constraints:
         study=W.studies_of_kind("bicycle"),
     params:
-        nb=lambda wildcards, input: W.papermill_args(
+        nb=lambda wildcards, input: JOBS.write_parameters(
             "notebook_bicycle",
             study=wildcards.study,
-            spec=W.notebook_spec("bicycle"),
+            spec=JOBS.write_notebook("bicycle"),
             summary_path=input.summary,
             figure_dir=paths.figures(wildcards.study),
             table_dir=paths.tables(wildcards.study),
@@ -123,7 +123,7 @@ rule notebook_bicycle:
         paths.log("notebooks", "{study}.log"),
     localrule: True
     shell:
-        run_notebook("{params.nb}")
+        run_notebook("-f {params.nb:q}")
 
 
 rule notebook_ablation:
@@ -141,10 +141,10 @@ rule notebook_ablation:
     wildcard_constraints:
         study=W.studies_of_kind("ablation"),
     params:
-        nb=lambda wildcards, input: W.papermill_args(
+        nb=lambda wildcards, input: JOBS.write_parameters(
             "notebook_ablation",
             study=wildcards.study,
-            spec=W.notebook_spec("ablation"),
+            spec=JOBS.write_notebook("ablation"),
             runs_path=input.runs,
             raceline=input.raceline,
             series_paths=input.series,
@@ -156,7 +156,7 @@ rule notebook_ablation:
         paths.log("notebooks", "{study}.log"),
     localrule: True
     shell:
-        run_notebook("{params.nb}")
+        run_notebook("-f {params.nb:q}")
 
 
 rule notebook_failures:
@@ -171,10 +171,10 @@ rule notebook_failures:
         notebook=paths.notebooks("failures_{study}.ipynb"),
         html=paths.notebooks("failures_{study}.html"),
     params:
-        nb=lambda wildcards, input: W.papermill_args(
+        nb=lambda wildcards, input: JOBS.write_parameters(
             "notebook_failures",
             study=wildcards.study,
-            spec=W.notebook_spec("failures"),
+            spec=JOBS.write_notebook("failures"),
             runs_path=input.runs,
             raceline=input.raceline,
             figure_dir=paths.figures(wildcards.study),
@@ -185,7 +185,7 @@ rule notebook_failures:
         paths.log("notebooks", "failures_{study}.log"),
     localrule: True
     shell:
-        run_notebook("{params.nb}")
+        run_notebook("-f {params.nb:q}")
 
 
 rule notebook_scorecard:
@@ -209,9 +209,9 @@ rule notebook_scorecard:
         notebook=paths.scoped("{scope}", "notebooks", "scorecard.ipynb"),
         html=paths.scoped("{scope}", "notebooks", "scorecard.html"),
     params:
-        nb=lambda wildcards, input: W.papermill_args(
+        nb=lambda wildcards, input: JOBS.write_parameters(
             "notebook_scorecard",
-            spec=W.notebook_spec("scorecard"),
+            spec=JOBS.write_notebook("scorecard"),
             runs_path=input.runs,
             raceline=input.raceline,
             replicates=SCOPES[wildcards.scope],
@@ -229,7 +229,7 @@ rule notebook_scorecard:
         paths.scoped("{scope}", "logs", "notebooks", "scorecard.log"),
     localrule: True
     shell:
-        run_notebook("{params.nb}")
+        run_notebook("-f {params.nb:q}")
 
 
 rule study:

@@ -38,7 +38,7 @@ from cape.study.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS, NotebookO
 from cape.study.question_plan import Plan, QuestionSettings, stage_runs
 from cape.study.stale import missing_runs
 from cape.tracks.manifest import BAYESRACE_FILES
-from cape.workflow import specs
+from cape.workflow import job_files
 from cape.workflow.scheduler import bound_wakeup_timers
 
 SOURCE = "config (config/config.yaml and any --configfile)"
@@ -57,13 +57,13 @@ Health = Callable[[str, int], str]
 def prepare(config: Mapping[str, Any], main_process: bool) -> None:
     """Before any rule: in the main process, remove the locks of runs proven ended
     (cape/storage/locks.py) and write the package's bytecode once (cape/bytecode.py); everywhere,
-    validate the config (cape.workflow.specs.validate) and bound the scheduler's wake-up timers
+    validate the config (cape.workflow.job_files.validate) and bound the scheduler's wake-up timers
     (cape/workflow/scheduler.py)."""
     bound_wakeup_timers()
     if main_process:
         clear_stale_locks(".", report=lambda message: print(message, file=sys.stderr))
         precompile_package()
-    specs.validate(config, SOURCE)
+    job_files.validate(config, SOURCE)
 
 
 @contextmanager
@@ -89,7 +89,7 @@ class StudyWorkflow:
     (``from_config``)."""
 
     config: Mapping[str, Any]
-    """The validated config, for the job specifications (cape.workflow.specs) alone."""
+    """The validated config, for the question's settings alone."""
     study: StudySpec
     grid: Mapping[RunId, RunId]
     outputs: Outputs
@@ -175,17 +175,6 @@ class StudyWorkflow:
         """A wildcard constraint: the studies of ``kind`` (a pattern matching none if none)."""
         names = [s for s, grid in self.studies.items() if grid.kind == kind]
         return "|".join(names) or "(?!)"
-
-    # --- job specifications ------------------------------------------------------------------
-    def notebook_spec(self, name: str) -> str:
-        """Notebook ``name``'s specification: the config sections it declares it reads."""
-        text = specs.sections(self.config, *NOTEBOOKS[name].reads)
-        return specs.spec_file(f"notebook_{name}", text)
-
-    def papermill_args(self, job: str, **parameters: Any) -> str:
-        """``-f FILE``: a notebook's parameters, written as job ``job``'s specification."""
-        path = specs.spec_file(job, specs.notebook_parameters(parameters))
-        return f"-f {shlex.quote(path)}"
 
     # --- the model stage ---------------------------------------------------------------------
     def track_files(self) -> list[str]:
