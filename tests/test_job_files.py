@@ -98,20 +98,6 @@ def test_a_notebook_reads_the_sections_it_declares(jobs: JobFiles) -> None:
     assert sorted(_written(path)) == sorted(STUDY_NOTEBOOKS["bicycle"].reads)
 
 
-def test_a_grid_without_its_sections_is_one_error_and_a_notebook_may_lack_them(config) -> None:
-    from cape.specs.notebook import NotebookSpec
-    from cape.specs.study import StudySpec
-
-    sections = {"study": config["study"], "controllers": config["controllers"]}
-    with pytest.raises(CapeError, match="lacks the `disturbances` section"):
-        StudySpec.from_config(sections)
-    notebook = NotebookSpec.from_config(sections)
-    assert notebook.study is not None and notebook.study.replicates == 1
-    assert notebook.study.studies["learned"].controllers == tuple(
-        config["study"]["studies"]["learned"]["controllers"]
-    )
-
-
 def test_an_unwritable_spec_folder_is_one_line(tmp_path: Path, monkeypatch) -> None:
     monkeypatch.chdir(tmp_path)
     (tmp_path / "results").mkdir()
