@@ -70,9 +70,10 @@ def run_lap(
     plant's, whose state beyond it (or non-finite) ends the run as ``plant_diverged`` before
     the disturbances act on it."""
     ts = line.ts
-    horizon, time_limit, penalty = settings.horizon, settings.time_limit, settings.penalty
+    horizon, time_limit = int(settings.horizon), float(settings.time_limit)
+    penalty = settings.penalty
     max_steps = round(time_limit / ts)
-    x = initial_state(line, settings.vx0)
+    x = initial_state(line, float(settings.vx0))
     plant.reset(x)
     disturbances.reset(delta0=0.0)
     car = ProgressTracker(line)  # the true progress: laps and tracking errors
@@ -156,7 +157,7 @@ def run_lap(
     metrics["rescues"] = rescued  # steps the SQP left to its rescue
     metrics["solver_iterations_median"] = float(np.median(iterations)) if iterations else None
     metrics["solver_iterations_max"] = max(iterations) if iterations else None
-    window = max(round(settings.failure_window / ts), 0)
+    window = max(round(float(settings.failure_window) / ts), 0)
     metrics.update(
         failure_location(failure, car.total, line.length, last_pose, fallback_steps, window)
     )

@@ -186,7 +186,7 @@ def build_run(
     compiled = compile_settings(spec)
     native.enable(compiled)  # projections in C: the same numbers
     line, track = load_reference(spec.reference, raceline)
-    check_time_limit(spec.rollout.time_limit, line.ideal_lap_time())
+    check_time_limit(float(spec.rollout.time_limit), line.ideal_lap_time())
     disturbances = DisturbancePipeline.from_config(spec.disturbances.sources, eta, seed)
     transform = disturbances.plant_params
     loaded: dict[str, TrainedModel] = {}
@@ -205,7 +205,7 @@ def build_run(
     if not plant_parsed.is_truth and bound is not None:
         path = envelope_data or paths.dataset(spec.train_track)
         trained_on = read_meta(folders(str(model_name))).get("data_sha256")
-        envelope, envelope_source = Envelope.of_file(path, bound, trained_on)
+        envelope, envelope_source = Envelope.of_file(path, float(bound), trained_on)
     entry = spec.controller_entry
     cls = controller_class(controller_name, entry)
     if validate:

@@ -110,16 +110,17 @@ class RolloutSettings:
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any]) -> RolloutSettings:
+        """The config's values as it spells them (15 stays 15, not 15.0: the workflow passes
+        ``time_limit`` on the command line), checked by the schema."""
         rollout = section(config, "rollout")
-        envelope = setting(rollout, "plant_envelope", "rollout")
         penalty = rollout["penalty"]
         return cls(
-            vx0=float(rollout["vx0"]),
-            time_limit=float(rollout["time_limit"]),
-            horizon=int(rollout["horizon"]),
+            vx0=rollout["vx0"],
+            time_limit=rollout["time_limit"],
+            horizon=rollout["horizon"],
             penalty=Penalty(penalty["lap_time"], penalty["tracking_error"]),
-            failure_window=float(setting(rollout, "failure_window", "rollout")),
-            plant_envelope=None if envelope is None else float(envelope),
+            failure_window=setting(rollout, "failure_window", "rollout"),
+            plant_envelope=setting(rollout, "plant_envelope", "rollout"),
             compile=PhiCompile.from_config(config),
         )
 

@@ -109,6 +109,28 @@ class HealthSettings:
 
 
 @dataclass(frozen=True)
+class TrainingSettings:
+    """The ``training`` section's settings every training shares, as the config spells them:
+    the first training's seed (the k-th's is seed + k), threads, Adam's fused kernel and the
+    seconds between resumable checkpoints."""
+
+    seed: int
+    threads: int
+    fused_adam: bool
+    checkpoint_every: float
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any]) -> TrainingSettings:
+        training = section(config, "training")
+        return cls(
+            seed=training["seed"],
+            threads=training["threads"],
+            fused_adam=setting(training, "fused_adam", "training"),
+            checkpoint_every=setting(training, "checkpoint_every", "training"),
+        )
+
+
+@dataclass(frozen=True)
 class TrainingSpec:
     """One training of ``model`` (SPEC §4); the seed is ``training.seed`` unless the command
     overrides it."""
@@ -128,16 +150,16 @@ class TrainingSpec:
     @classmethod
     def from_config(cls, config: Mapping[str, Any], model: str) -> TrainingSpec:
         entry = entry_of(section(config, "models"), model, "--model", "models")
-        data, training = section(config, "data"), section(config, "training")
+        shared = TrainingSettings.from_config(config)
         return cls(
             model=model,
             entry=entry,
-            ts=float(data["ts"]),
+            ts=float(section(config, "data")["ts"]),
             split=Split.from_config(config),
-            seed=int(training["seed"]),
-            threads=int(training["threads"]),
-            fused_adam=bool(setting(training, "fused_adam", "training")),
+            seed=int(shared.seed),
+            threads=int(shared.threads),
+            fused_adam=bool(shared.fused_adam),
             compile=TrainingCompile.from_config(config),
             kernels=Kernels.from_config(config),
-            checkpoint_every=float(setting(training, "checkpoint_every", "training")),
+            checkpoint_every=float(shared.checkpoint_every),
         )
