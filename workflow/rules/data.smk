@@ -3,7 +3,7 @@
 
 rule dataset:
     input:
-        W.track_files(),
+        TRACKS.files(),
     output:
         paths.DATASET,
     params:

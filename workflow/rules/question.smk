@@ -7,7 +7,7 @@
 rule question:
     """The runs of the question's current stage (`cape question` runs it, stage by stage)."""
     input:
-        W.question_targets(),
+        QUESTION.targets(),
     localrule: True
 
 
@@ -15,12 +15,12 @@ rule notebook_question:
     """Figure 15 and table 10: the question's rows through its looks, from the looks.csv that
     `cape question` writes after each stage (it runs this rule when it stops)."""
     input:
-        notebook=f"{NOTEBOOKS}/question.ipynb",
+        notebook=f"{NOTEBOOK_DIR}/question.ipynb",
         looks=paths.QUESTION_LOOKS,
     output:
-        W.figures("question", paths.scoped(paths.QUESTION, "figures"), ".pdf"),
-        W.figures("question", paths.scoped(paths.QUESTION, "figures"), ".png"),
-        W.tables("question", paths.scoped(paths.QUESTION, "tables")),
+        NOTEBOOKS.figures("question", paths.scoped(paths.QUESTION, "figures"), ".pdf"),
+        NOTEBOOKS.figures("question", paths.scoped(paths.QUESTION, "figures"), ".png"),
+        NOTEBOOKS.tables("question", paths.scoped(paths.QUESTION, "tables")),
         notebook=paths.scoped(paths.QUESTION, "notebooks", "question.ipynb"),
         html=paths.scoped(paths.QUESTION, "notebooks", "question.html"),
     params:

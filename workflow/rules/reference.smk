@@ -3,7 +3,7 @@
 
 rule raceline:
     input:
-        W.track_files(),
+        TRACKS.files(),
     output:
         line=paths.RACELINE,
         pdf=paths.figures("raceline_{track}.pdf"),
@@ -11,7 +11,7 @@ rule raceline:
     params:
         spec=lambda wildcards: JOBS.write_sections("raceline", "tracks", "reference"),
         # checked against the line's ideal lap before any run starts (a limit no lap can meet)
-        time_limit=W.time_limit,
+        time_limit=TRACKS.time_limit,
     conda:
         CAPE_ENV
     log:

@@ -3,12 +3,12 @@
 
 rule solver:
     input:
-        unpack(W.solver_inputs),
+        unpack(RUNS.solver_inputs),
     output:
         paths.SOLVER,
     params:
         spec=lambda wildcards: JOBS.write_solver(wildcards.controller, wildcards.internal),
-        models=lambda wildcards: W.model_folder_args(wildcards, [wildcards.internal]),
+        models=lambda wildcards: RUNS.model_folder_args(wildcards, [wildcards.internal]),
     conda:
         CAPE_ENV
     log:
@@ -22,7 +22,7 @@ rule solver:
 
 rule rollout:
     input:
-        unpack(W.rollout_inputs),
+        unpack(RUNS.rollout_inputs),
     output:
         metrics=f"{RUN_FOLDER}/{paths.METRICS}",
         timing=f"{RUN_FOLDER}/{paths.TIMING}",
@@ -30,8 +30,8 @@ rule rollout:
     params:
         spec=lambda wildcards: JOBS.write_rollout(wildcards.controller, wildcards.plant, wildcards.internal),
         out=lambda wildcards, output: os.path.dirname(output.metrics),
-        models=lambda wildcards: W.model_folder_args(wildcards, W.rollout_models(wildcards)),
-        data=lambda wildcards, input: W.training_data_arg(input),
+        models=lambda wildcards: RUNS.model_folder_args(wildcards, RUNS.rollout_models(wildcards)),
+        data=lambda wildcards, input: RUNS.training_data_arg(input),
     conda:
         CAPE_ENV
     log:
@@ -49,8 +49,8 @@ rule rollout:
 rule rollouts:
     """Every closed-loop run of the default target (replicate 0; a named target)."""
     input:
-        W.solver_outputs(W.computed_runs({0})),
-        W.run_outputs(W.computed_runs({0})),
+        RUNS.solver_outputs(RUNS.computed_runs({0})),
+        RUNS.run_outputs(RUNS.computed_runs({0})),
     localrule: True
 
 
@@ -59,7 +59,7 @@ rule figure_rollout:
     input:
         metrics=f"{RUN_FOLDER}/{paths.METRICS}",
         series=f"{RUN_FOLDER}/{paths.SERIES}",
-        raceline=W.raceline_path(),
+        raceline=TRACKS.raceline(),
     output:
         pdf=f"{paths.ROLLOUT_FIGURES}/{RUN_STEM}.pdf",
         png=f"{paths.ROLLOUT_FIGURES}/{RUN_STEM}.png",

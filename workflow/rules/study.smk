@@ -10,7 +10,7 @@ rule aggregate:
     success rates in <scope>/study/summary.parquet (results/: replicate 0; results/replicates/:
     every training replicate)."""
     input:
-        lambda wildcards: W.rollout_targets(set(SCOPES[wildcards.scope])),
+        lambda wildcards: RUNS.rollout_targets(set(SCOPES[wildcards.scope])),
     output:
         runs=paths.STUDY_RUNS,
         summary=paths.STUDY_SUMMARY,
@@ -32,11 +32,11 @@ rule aggregate:
 rule notebook_setup:
     """Figure 1 and tables 2–3, from the config alone."""
     input:
-        notebook=f"{NOTEBOOKS}/setup.ipynb",
+        notebook=f"{NOTEBOOK_DIR}/setup.ipynb",
     output:
         *reported_figures("setup", paths.FIGURES, "../report/fig01.rst", "Set-up"),
-        W.figures("setup", paths.FIGURES, ".pdf"),
-        W.tables("setup", paths.TABLES),
+        NOTEBOOKS.figures("setup", paths.FIGURES, ".pdf"),
+        NOTEBOOKS.tables("setup", paths.TABLES),
         notebook=paths.notebooks("setup.ipynb"),
         html=paths.notebooks("setup.html"),
     params:
@@ -59,19 +59,19 @@ rule notebook_closed_loop:
     """Figures 2, 3, 7–11 and tables 6–7 of a study of kind closed_loop (the learned and
     ground-truth studies, or one a user adds)."""
     input:
-        notebook=f"{NOTEBOOKS}/closed_loop.ipynb",
+        notebook=f"{NOTEBOOK_DIR}/closed_loop.ipynb",
         runs=paths.study_runs(),
         summary=paths.study_summary(),
-        raceline=W.raceline_path(),
-        series=lambda wildcards: W.example_series(wildcards.study),
+        raceline=TRACKS.raceline(),
+        series=lambda wildcards: NOTEBOOKS.example_series(wildcards.study),
     output:
         *reported_figures("closed_loop", paths.figures("{study}"), "../report/closed_loop.rst", "{study} study"),
-        W.figures("closed_loop", paths.figures("{study}"), ".pdf"),
-        W.tables("closed_loop", paths.tables("{study}")),
+        NOTEBOOKS.figures("closed_loop", paths.figures("{study}"), ".pdf"),
+        NOTEBOOKS.tables("closed_loop", paths.tables("{study}")),
         notebook=paths.notebooks("{study}.ipynb"),
         html=paths.notebooks("{study}.html"),
     wildcard_constraints:
-        study=W.studies_of_kind("closed_loop"),
+        study=NOTEBOOKS.studies_of_kind("closed_loop"),
     params:
         nb=lambda wildcards, input: JOBS.write_parameters(
             "notebook_closed_loop",
@@ -98,16 +98,16 @@ rule notebook_bicycle:
     """Table 5 and figures 5–6 of a study of kind bicycle: its fixed-parameter plants against
     the paper's study's learned EPM."""
     input:
-        notebook=f"{NOTEBOOKS}/bicycle.ipynb",
+        notebook=f"{NOTEBOOK_DIR}/bicycle.ipynb",
         summary=paths.study_summary(),
     output:
         *reported_figures("bicycle", paths.figures("{study}"), "../report/bicycle.rst", "{study} study"),
-        W.figures("bicycle", paths.figures("{study}"), ".pdf"),
-        W.tables("bicycle", paths.tables("{study}")),
+        NOTEBOOKS.figures("bicycle", paths.figures("{study}"), ".pdf"),
+        NOTEBOOKS.tables("bicycle", paths.tables("{study}")),
         notebook=paths.notebooks("{study}.ipynb"),
         html=paths.notebooks("{study}.html"),
     wildcard_constraints:
-        study=W.studies_of_kind("bicycle"),
+        study=NOTEBOOKS.studies_of_kind("bicycle"),
     params:
         nb=lambda wildcards, input: JOBS.write_parameters(
             "notebook_bicycle",
@@ -129,17 +129,17 @@ rule notebook_bicycle:
 rule notebook_ablation:
     """Figure 4 of a study of kind ablation: internal model against plant trajectories."""
     input:
-        notebook=f"{NOTEBOOKS}/ablation.ipynb",
+        notebook=f"{NOTEBOOK_DIR}/ablation.ipynb",
         runs=paths.study_runs(),
-        raceline=W.raceline_path(),
-        series=lambda wildcards: W.example_series(wildcards.study),
+        raceline=TRACKS.raceline(),
+        series=lambda wildcards: NOTEBOOKS.example_series(wildcards.study),
     output:
         *reported_figures("ablation", paths.figures("{study}"), "../report/fig04.rst", "{study} study"),
-        W.figures("ablation", paths.figures("{study}"), ".pdf"),
+        NOTEBOOKS.figures("ablation", paths.figures("{study}"), ".pdf"),
         notebook=paths.notebooks("{study}.ipynb"),
         html=paths.notebooks("{study}.html"),
     wildcard_constraints:
-        study=W.studies_of_kind("ablation"),
+        study=NOTEBOOKS.studies_of_kind("ablation"),
     params:
         nb=lambda wildcards, input: JOBS.write_parameters(
             "notebook_ablation",
@@ -162,12 +162,12 @@ rule notebook_ablation:
 rule notebook_failures:
     """Figure 12 of one study: where its failed runs left the lap, on the track map."""
     input:
-        notebook=f"{NOTEBOOKS}/failures.ipynb",
+        notebook=f"{NOTEBOOK_DIR}/failures.ipynb",
         runs=paths.study_runs(),
-        raceline=W.raceline_path(),
+        raceline=TRACKS.raceline(),
     output:
         *reported_figures("failures", paths.figures("{study}"), "../report/failures.rst", "{study} study"),
-        W.figures("failures", paths.figures("{study}"), ".pdf"),
+        NOTEBOOKS.figures("failures", paths.figures("{study}"), ".pdf"),
         notebook=paths.notebooks("failures_{study}.ipynb"),
         html=paths.notebooks("failures_{study}.html"),
     params:
@@ -194,17 +194,17 @@ rule notebook_scorecard:
     figure, tables 4 and 1 over the replicates, and RESULTS.md; tables 8 and 9 computed from the
     scope's evidence folder, which it writes first (they re-derive from it alone)."""
     input:
-        unpack(W.scorecard_inputs),
-        notebook=f"{NOTEBOOKS}/scorecard.ipynb",
+        unpack(NOTEBOOKS.scorecard_inputs),
+        notebook=f"{NOTEBOOK_DIR}/scorecard.ipynb",
         runs=paths.STUDY_RUNS,
-        raceline=W.raceline_path(),
+        raceline=TRACKS.raceline(),
     output:
         report(paths.scoped("{scope}", "tables", "table08_scorecard.md"), caption="../report/scorecard.rst", category="Claims"),
         *(paths.evidence("{scope}", name) for name in paths.EVIDENCE_FILES),
         multiext(paths.scoped("{scope}", "tables", "table08_scorecard"), ".csv", ".tex"),
-        *(paths.scoped("{scope}", "tables", f"{name}{ext}") for name in WHOLE_STUDY_NOTEBOOKS["scorecard"].tables if name != "table08_scorecard" for ext in TABLE_EXTS),
+        *(paths.scoped("{scope}", "tables", f"{name}{ext}") for name in DECLARED["scorecard"].tables if name != "table08_scorecard" for ext in TABLE_EXTS),
         *reported_figures("scorecard", paths.scoped("{scope}", "figures"), "../report/scorecard.rst", "Claims"),
-        W.figures("scorecard", paths.scoped("{scope}", "figures"), ".pdf"),
+        NOTEBOOKS.figures("scorecard", paths.scoped("{scope}", "figures"), ".pdf"),
         report(paths.GLANCE, caption="../report/glance.rst", category="Claims"),
         notebook=paths.scoped("{scope}", "notebooks", "scorecard.ipynb"),
         html=paths.scoped("{scope}", "notebooks", "scorecard.html"),
@@ -235,7 +235,7 @@ rule notebook_scorecard:
 rule study:
     """Every table, figure and executed notebook of the study (a named target)."""
     input:
-        W.study_targets(),
+        NOTEBOOKS.study_targets(),
     localrule: True
 
 
@@ -251,5 +251,5 @@ rule replicates:
 # A scope's runs.parquet whose runs are not all there: say which target rebuilds it
 # (cape/study/stale.py).
 if workflow.is_main_process:
-    for _message in W.stale_summaries():
+    for _message in NOTEBOOKS.stale_summaries():
         print(_message, file=sys.stderr)

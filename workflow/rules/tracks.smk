@@ -3,7 +3,7 @@
 
 rule tracks:
     output:
-        W.track_files(),
+        TRACKS.files(),
     params:
         spec=lambda wildcards: JOBS.write_sections("tracks", "tracks"),
     conda:

@@ -33,24 +33,6 @@ GRID_KEYS = ("replicates", "max_trainings")
 Config = Mapping[str, Any]
 
 
-def validate(config: Mapping[str, Any], source: str) -> None:
-    """The config against its schema and cross-field rules (cape.config), each controller's
-    and disturbance source's own keys, and each model's module imported (it registers the
-    model); each problem one ``CapeError`` naming the key and the fix."""
-    from cape.closedloop.disturbances import validate_sources
-    from cape.config import validate_config
-    from cape.controllers import controller_class
-    from cape.controllers.base import validate_settings
-    from cape.models.registry import model_class
-
-    validate_config(config, source)
-    for name, entry in config["controllers"].items():
-        validate_settings(controller_class(name, entry), name, entry, source)
-    validate_sources(config["disturbances"], source)
-    for name, entry in config["models"].items():
-        model_class(name, entry)
-
-
 def write_job_file(job: str, text: str) -> str:
     """Write ``job``'s file of content ``text`` once (atomically) if absent; its path.
 
