@@ -153,7 +153,7 @@ def early(
     try:
         result = training.train_model(
             name, spec, windows, ts=float(section(config, "data")["ts"]), seed=seed,
-            epochs=epochs, progress=False, compile_settings={"enabled": False},
+            epochs=epochs, progress=False, compile_settings=None,
         )  # fmt: skip
     finally:
         training.build_model = build

@@ -43,7 +43,7 @@ from _common import add_config, require_file, run, study_config  # a sibling mod
 from cape.errors import CapeError
 from cape.layout import paths
 from cape.layout.record import read_timing
-from cape.workflow import specs
+from cape.workflow.job_files import JobFiles
 
 
 def job_command(config: dict[str, Any], controller: str, internal: str, eta: str, out: Path,
@@ -52,7 +52,7 @@ def job_command(config: dict[str, Any], controller: str, internal: str, eta: str
     internal model of draw ``replicate`` where the workflow keeps it (``paths.model_dir``)."""
     learned = controller != "pid"
     plant, used = "truth", internal if learned else "truth"
-    spec = specs.spec_file("rollout", specs.rollout(config, controller, plant, used))
+    spec = JobFiles(config).write_rollout(controller, plant, used)
     command = ["cape", "rollout", "--study", "truth", "--plant", "truth", "--controller",
                controller, "--internal", used, "--eta", eta,
                "--seed", "0", "--replicate", str(replicate), "--out", str(out), "--raceline",

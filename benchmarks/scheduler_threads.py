@@ -44,8 +44,7 @@ from pathlib import Path
 from _common import json_output, run
 
 from cape.errors import CapeError
-from cape.workflow.processes import stop
-from cape.workflow.scheduler import threads_of
+from cape.processes import stop, threads_of
 
 TIMEOUT = 6 * 3600.0  # s: the default bound on one snakemake run (--timeout)
 GRACE = 10.0  # s: how long a stopped snakemake gets to end its jobs before it is killed

@@ -29,6 +29,7 @@ per-step figures.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import statistics
 import sys
@@ -50,6 +51,7 @@ from cape.models.training import (
     build_model,
     training_loss,
 )
+from cape.specs.training import TrainingCompile
 
 VARIANTS = ("old", "new", "eager")
 Step = Callable[[torch.Tensor], float]
@@ -63,8 +65,8 @@ def _old_stepper(name, spec, data, ts, settings) -> Step:
     model.set_scaler(data.scaler.mean, data.scaler.scale)
     model.train()
     optimiser = torch.optim.Adam(model.parameters(), lr=float(spec["train"]["lr"]), fused=True)
-    if settings.get("cache"):
-        os.environ["TORCHINDUCTOR_CACHE_DIR"] = str(Path(settings["cache"]).resolve())
+    if settings.cache:
+        os.environ["TORCHINDUCTOR_CACHE_DIR"] = str(Path(settings.cache).resolve())
     torch._dynamo.config.allow_rnn = True
     forward = torch.compile(model, dynamic=False, options={"cpp_wrapper": False})
     x = torch.as_tensor(data.train.features, dtype=torch.float64)
@@ -133,7 +135,7 @@ def main() -> None:
     torch.set_num_threads(int(train_cfg["threads"]))
     torch.use_deterministic_algorithms(True)  # as cape train runs
     dataset = read_dataset(args.data or paths.dataset(data_cfg["train_track"]))
-    settings = {**(train_cfg.get("compile") or {}), "enabled": True}
+    settings = dataclasses.replace(TrainingCompile.from_config(config), enabled=True)
     print(f"training.compile: {settings}; {torch.get_num_threads()} thread(s); load average "
           f"{' '.join(f'{x:.1f}' for x in os.getloadavg())}")  # fmt: skip
     ts = float(data_cfg["ts"])

@@ -29,7 +29,7 @@ def sampled_snakemake(*args: str, cwd: Path = REPO_ROOT, timeout: float = 300):
     import tempfile
     import time
 
-    from cape.workflow.scheduler import threads_of
+    from cape.processes import threads_of
 
     with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
         command = ["snakemake", "-s", str(REPO_ROOT / "Snakefile"), *args]

@@ -13,6 +13,7 @@ from commands import cape, sampled_snakemake
 
 from cape.config import REPO_ROOT, load_config
 from cape.data.bayesrace import ProtocolSettings, generate_dataset
+from cape.specs.tracks import DataSettings, ReferenceSettings
 from cape.storage.integrity import sealed_arrays
 from cape.tracks.fetch import obtain_tracks
 from cape.tracks.raceline import build_raceline
@@ -44,7 +45,7 @@ def datasets(track_dir: Path, config: dict) -> dict[str, dict[str, np.ndarray]]:
     """DYN-PP-ETHZ and DYN-PP-ETHZMobil, generated once for the whole test session."""
     out = {}
     for track, entry in config["data"]["tracks"].items():
-        settings = ProtocolSettings.from_config(config["data"], track)
+        settings = ProtocolSettings.of(DataSettings.from_config(config), track)
         out[track] = generate_dataset(
             load_raceline(track_dir, entry["raceline"]), GROUND_TRUTH, settings
         )
@@ -70,7 +71,7 @@ def setup(
     config_file.write_text(yaml.safe_dump(cfg))
     rl = build_raceline(
         load_track(track_dir, "ETHZMobil", "ethzMobil", 0.46),
-        config["reference"],
+        ReferenceSettings.from_config(config),
         GROUND_TRUTH,
         ACTUATOR_LIMITS,
     )

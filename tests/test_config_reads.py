@@ -1,6 +1,16 @@
-"""The config dictionary is read in one place: cape.config (loading and validating it), the
-typed specifications' builders (cape/specs, cape/workflow/specs.py, any ``from_config``) and
-nowhere else in src, the workflow's rules or the notebooks; the code below them takes a spec."""
+"""``from_config`` is the only door into the config: the config dictionary is indexed only by
+``cape.config`` (which loads it, fills in the schema's defaults and checks it), the typed
+specifications' builders in ``cape/specs`` (each ``from_config``) and the workflow's job-file
+writers (``cape/workflow/job_files.py``, which copy the sections a job reads into its file:
+JSON in, JSON out). Nowhere else in src, the workflow's rules or the notebooks: the code below
+them takes a spec.
+
+The scan (``_reads``) reads each module's syntax tree for what indexes a config: a subscript of
+a name that holds one (``config``, ``cfg``, or one ending in ``_config`` or ``_cfg``, or such an
+attribute: ``self.config``), a ``.get`` on it, or ``section(config, ...)``. Passing the config on
+(``Spec.from_config(config)``) is not indexing it. A builder elsewhere (a ``from_config`` outside
+cape/specs) is no exception: it hands the config to a spec.
+"""
 
 from __future__ import annotations
 
@@ -10,39 +20,34 @@ import re
 
 from cape.config import REPO_ROOT
 
-CONFIG_NAMES = {"config", "cfg"}
-BUILDERS = {"from_config"}
-ALLOWED = ("src/cape/config.py", "src/cape/specs/", "src/cape/workflow/specs.py")
+ALLOWED = ("src/cape/config.py", "src/cape/specs/", "src/cape/workflow/job_files.py")
+"""Where the config may be indexed (the module docstring says why)."""
+
+
+def _holds_config(name: str) -> bool:
+    return name in ("config", "cfg") or name.endswith(("_config", "_cfg"))
 
 
 def _is_config(node: ast.AST) -> bool:
     if isinstance(node, ast.Name):
-        return node.id in CONFIG_NAMES
-    return isinstance(node, ast.Attribute) and node.attr in CONFIG_NAMES
+        return _holds_config(node.id)
+    return isinstance(node, ast.Attribute) and _holds_config(node.attr)
 
 
 def _reads(source: str) -> list[int]:
-    """Lines that index the config or ask `section` for one of it, outside a builder."""
+    """The lines that index a config: a subscript, a ``.get``, ``section(config, ...)``."""
     found: list[int] = []
-
-    def visit(node: ast.AST, builder: bool) -> None:
-        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
-            builder = builder or node.name in BUILDERS
-        if not builder:
-            if isinstance(node, ast.Subscript) and _is_config(node.value):
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Subscript) and _is_config(node.value):
+            found.append(node.lineno)
+        elif isinstance(node, ast.Call):
+            func = node.func
+            name = func.id if isinstance(func, ast.Name) else getattr(func, "attr", "")
+            if (name in ("section", "setting") and node.args and _is_config(node.args[0])) or (
+                name == "get" and isinstance(func, ast.Attribute) and _is_config(func.value)
+            ):
                 found.append(node.lineno)
-            elif isinstance(node, ast.Call):
-                func = node.func
-                name = func.id if isinstance(func, ast.Name) else getattr(func, "attr", "")
-                if (name == "section" and node.args and _is_config(node.args[0])) or (
-                    name == "get" and isinstance(func, ast.Attribute) and _is_config(func.value)
-                ):
-                    found.append(node.lineno)
-        for child in ast.iter_child_nodes(node):
-            visit(child, builder)
-
-    visit(ast.parse(source), False)
-    return found
+    return sorted(found)
 
 
 def _smk_reads(text: str) -> list[int]:
@@ -71,4 +76,7 @@ def test_the_scan_finds_a_read() -> None:
     assert _reads('x = config["study"]') == [1]
     assert _reads('x = section(config, "study")') == [1]
     assert _reads("x = self.config.get('plan')") == [1]
-    assert _reads('def from_config(config):\n    return config["study"]') == []
+    assert _reads('def f(data_cfg):\n    return data_cfg["steps"]') == [2]
+    assert _reads('def from_config(config):\n    return config["study"]') == [2]  # no exception
+    assert _reads("spec = RunSpec.from_config(config, name)") == []  # handing it on
+    assert _smk_reads('x = config["study"]  # a rule') == [1]

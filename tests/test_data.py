@@ -60,13 +60,14 @@ def test_dstates_is_the_euler_side_trajectory(datasets) -> None:
 
 def test_generation_is_deterministic(datasets, track_dir, config) -> None:
     from cape.data.bayesrace import ProtocolSettings, generate_dataset
+    from cape.specs.tracks import DataSettings
     from cape.tracks.track import load_raceline
     from cape.vehicle.params import GROUND_TRUTH
 
     again = generate_dataset(
         load_raceline(track_dir, "ethzMobil_raceline.npz"),
         GROUND_TRUTH,
-        ProtocolSettings.from_config(config["data"], "ETHZMobil"),
+        ProtocolSettings.of(DataSettings.from_config(config), "ETHZMobil"),
     )
     for key, value in datasets["ETHZMobil"].items():
         np.testing.assert_array_equal(again[key], value)

@@ -15,6 +15,7 @@ from cape.closedloop.disturbances import (
     ProcessNoise,
     SteeringDelay,
 )
+from cape.specs.run import DisturbancesSpec
 from cape.vehicle import GROUND_TRUTH
 
 X = np.array([1.0, -0.5, 0.3, 2.0, 0.1, -1.5])
@@ -165,6 +166,10 @@ def _with_throttle_delay(config, **entry) -> dict:
     return {**config["disturbances"], "throttle_delay": settings}
 
 
+def _as_spec(disturbances: dict) -> DisturbancesSpec:
+    return DisturbancesSpec.from_config({"disturbances": disturbances})
+
+
 def test_a_plugged_in_source_acts_after_the_six_and_delays_the_throttle(config) -> None:
     disturbances = _with_throttle_delay(config)
     pipe = DisturbancePipeline.from_config(disturbances, eta=1.0, seed=0)
@@ -179,7 +184,7 @@ def test_a_plugged_in_source_acts_after_the_six_and_delays_the_throttle(config) 
 def test_table_3_and_the_block_diagram_list_a_plugged_in_source(config) -> None:
     from cape.study.tables import uncertainty_activation
 
-    table = uncertainty_activation(_with_throttle_delay(config, active_from=1.5))
+    table = uncertainty_activation(_as_spec(_with_throttle_delay(config, active_from=1.5)))
     column = table.set_index("η")["throttle delay (steps)"]
     assert column["1"] == "–" and column["2"] == "2" and column["5"] == "2"
     assert list(table.columns)[-1] == "throttle delay (steps)"  # after SPEC §6's six
@@ -189,7 +194,7 @@ def test_table_3_and_the_block_diagram_list_a_plugged_in_source(config) -> None:
     matplotlib.use("Agg")
     from cape.plots.study import block_diagram
 
-    fig = block_diagram(_with_throttle_delay(config))
+    fig = block_diagram(_as_spec(_with_throttle_delay(config)))
     texts = [t.get_text() for t in fig.axes[0].texts]
     actuation = next(t for t in texts if "steering delay" in t)
     assert "throttle delay" in actuation  # in the actuators' box, beside the steering delay

@@ -337,13 +337,13 @@ def test_a_refusal_while_snakemake_loads_a_spec_is_one_line(tmp_path: Path) -> N
 
 # --- a started snakemake is stopped with its jobs (cape question, scheduler_threads.py) ----------
 def test_stop_ends_a_process_and_the_jobs_it_started_in_sessions_of_their_own() -> None:
-    """``cape.workflow.processes.stop``, shared by `cape question` and
+    """``cape.processes.stop``, shared by `cape question` and
     benchmarks/scheduler_threads.py: a parent in its own session whose child is in another
     session (as Snakemake starts its jobs), the child ignoring SIGTERM: both end, the child by
     SIGKILL after the grace."""
     import time
 
-    from cape.workflow.processes import descendants, stop
+    from cape.processes import descendants, stop
 
     proc = subprocess.Popen(
         ["bash", "-c", "setsid bash -c 'trap \"\" TERM; sleep 60' & wait"],

@@ -2,8 +2,8 @@
 
 cli, workflow → study → plots → closedloop → controllers → models → data → tracks → vehicle →
 specs (what a job reads) → config, registry, numerics → layout (every name and path) → the
-bottom floor: errors, storage (the write policy), schemas, …: the order in which a run is built,
-each floor using only the ones below.
+bottom floor: errors, storage (the write policy), schemas, processes, …: the order in which a
+run is built, each floor using only the ones below.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 from cape.config import REPO_ROOT
 
 FLOORS = [
-    ("errors", "storage", "paper", "bytecode", "schemas"),
+    ("errors", "storage", "paper", "bytecode", "schemas", "processes"),
     ("layout",), ("config", "registry", "numerics"), ("specs",), ("vehicle",), ("tracks",),
     ("data",), ("models",), ("controllers",), ("closedloop",), ("plots",), ("study",),
     ("cli", "workflow"),

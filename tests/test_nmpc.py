@@ -29,13 +29,14 @@ def cfg(config, track_dir, tmp_path: Path, solver_cache: Path):
     cfg["tracks"]["dir"] = str(track_dir)
     for name in ("nmpc", "anmpc", "rnmpc"):
         cfg["controllers"][name]["compile"]["cache"] = str(solver_cache)
+    from cape.specs.tracks import ReferenceSettings
     from cape.tracks.raceline import build_raceline
     from cape.tracks.track import load_track
     from cape.vehicle import ACTUATOR_LIMITS, GROUND_TRUTH
 
     rl = build_raceline(
         load_track(track_dir, "ETHZMobil", "ethzMobil", 0.46),
-        cfg["reference"],
+        ReferenceSettings.from_config(cfg),
         GROUND_TRUTH,
         ACTUATOR_LIMITS,
     )

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from cape.specs.tracks import ReferenceSettings
 from cape.tracks.geometry import ClosedPath
 from cape.tracks.raceline import build_raceline, lap_time, min_curvature_offsets, speed_profile
 from cape.tracks.track import load_track
@@ -17,7 +18,9 @@ A_LAT = 0.85 * (GROUND_TRUTH.Df + GROUND_TRUTH.Dr) / GROUND_TRUTH.m
 def mobil(track_dir, config):
     entry = config["tracks"]["catalogue"]["ETHZMobil"]
     track = load_track(track_dir, "ETHZMobil", entry["prefix"], entry["width"])
-    return track, build_raceline(track, config["reference"], GROUND_TRUTH, ACTUATOR_LIMITS)
+    return track, build_raceline(
+        track, ReferenceSettings.from_config(config), GROUND_TRUTH, ACTUATOR_LIMITS
+    )
 
 
 def test_second_differences_of_a_circle_shrink_with_its_radius() -> None:

@@ -17,6 +17,8 @@ from cape.closedloop.rollout import initial_state, run_lap
 from cape.controllers import controller_class
 from cape.controllers.base import Controller
 from cape.layout.record import write_run_files, write_timing
+from cape.specs.run import RolloutSettings
+from cape.specs.tracks import ReferenceSettings
 from cape.storage.integrity import sealed_arrays
 from cape.tracks.raceline import build_raceline
 from cape.tracks.reference import ReferenceLine
@@ -30,22 +32,16 @@ TS = 0.02
 def setting(track_dir, config):
     entry = config["tracks"]["catalogue"]["ETHZMobil"]
     track = load_track(track_dir, "ETHZMobil", entry["prefix"], entry["width"])
-    rl = build_raceline(track, config["reference"], GROUND_TRUTH, ACTUATOR_LIMITS)
-    return track, ReferenceLine(rl.x, rl.y, rl.speed, config["reference"], TS)
+    reference = ReferenceSettings.from_config(config)
+    rl = build_raceline(track, reference, GROUND_TRUTH, ACTUATOR_LIMITS)
+    return track, ReferenceLine(rl.x, rl.y, rl.speed, reference, TS)
 
 
 def _run(config, setting, controller, plant=None, eta=0.0, seed=0):
     track, line = setting
     dist = DisturbancePipeline.from_config(config["disturbances"], eta, seed)
     plant = plant or TruthPlant(GROUND_TRUTH.as_dict(), TS, dist.plant_params)
-    r = config["rollout"]
-    limits = {
-        "horizon": r["horizon"],
-        "time_limit": r["time_limit"],
-        "vx0": r["vx0"],
-        "penalty": r["penalty"],
-    }
-    return run_lap(plant, controller, line, track, dist, **limits)
+    return run_lap(plant, controller, line, track, dist, RolloutSettings.from_config(config))
 
 
 def _controller(config, setting, name: str, cfg=None, eta: float = 0.0):
@@ -216,9 +212,9 @@ def test_a_plant_that_runs_away_is_plant_diverged_not_the_controllers_failure(
     track, line = setting
     dist = DisturbancePipeline.from_config(config["disturbances"], 0.0, 0)
     r = config["rollout"]
-    limits = {k: r[k] for k in ("horizon", "time_limit", "vx0", "penalty")}
+    limits = RolloutSettings.from_config(config)
     pid = _controller(config, setting, "pid")
-    ran = run_lap(_RunawayPlant(at=100), pid, line, track, dist, **limits, envelope=envelope)
+    ran = run_lap(_RunawayPlant(at=100), pid, line, track, dist, limits, envelope=envelope)
     m = ran.metrics
     first_beyond = 100 + int(np.ceil(np.log(envelope.limits[2] / 7.0) / np.log(3.0)))
     assert m["failure"] == "plant_diverged" and not m["success"]
@@ -226,7 +222,7 @@ def test_a_plant_that_runs_away_is_plant_diverged_not_the_controllers_failure(
     assert abs(m["plant_diverged_omega"]) > envelope.limits[2] > 7.0 * 3 ** (first_beyond - 101)
     assert m["lap_time_penalised"] == r["penalty"]["lap_time"]  # a failed lap, as every failure
     unbounded = run_lap(_RunawayPlant(at=100), _controller(config, setting, "pid"), line, track,
-                        dist, **limits)  # fmt: skip
+                        dist, limits)  # fmt: skip
     assert unbounded.metrics["failure"] in ("off_track", "diverged")
     assert unbounded.metrics["plant_diverged_step"] is None
     truth = _run(config, setting, _controller(config, setting, "pid"))
@@ -260,7 +256,7 @@ def test_cli_rollout_is_byte_identical_when_repeated(
     raceline = tmp_path / "line.npz"
     rl = build_raceline(
         load_track(track_dir, "ETHZMobil", "ethzMobil", 0.46),
-        config["reference"],
+        ReferenceSettings.from_config(config),
         GROUND_TRUTH,
         ACTUATOR_LIMITS,
     )

@@ -411,6 +411,7 @@ def test_the_kernel_environment_is_part_of_a_trainings_identity(
     """MKL_CBWR set by hand draws another network: meta.json records it (it said `{}`), and the
     checkpoint's fingerprint holds it, so a checkpoint is never resumed under another setting."""
     from cape.models.kernels import in_effect
+    from cape.specs.training import Kernels
 
     data = tmp_path / "ethz.npz"
     np.savez(data, **datasets["ETHZ"])
@@ -422,7 +423,7 @@ def test_the_kernel_environment_is_part_of_a_trainings_identity(
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     assert json.loads((out / "meta.json").read_text())["kernels"] == {"MKL_CBWR": "COMPATIBLE"}
-    pinned = {"mkl_cbwr": "AVX2", "aten_capability": None}
+    pinned = Kernels(mkl_cbwr="AVX2")
     assert in_effect(pinned) == {"mkl_cbwr": "AVX2"}  # a pin shows once, as the pin
 
 
@@ -808,11 +809,12 @@ def test_a_kernel_pin_is_refused_once_pytorch_is_loaded(monkeypatch) -> None:
 
     from cape.errors import CapeError
     from cape.models.kernels import pin_before_torch
+    from cape.specs.training import Kernels
 
     monkeypatch.delenv("MKL_CBWR", raising=False)
     with pytest.raises(CapeError, match=r"training\.kernels: PyTorch is already loaded"):
-        pin_before_torch({"mkl_cbwr": "AVX2", "aten_capability": None})
-    pin_before_torch({"mkl_cbwr": None})  # nothing pinned: nothing to refuse
+        pin_before_torch(Kernels(mkl_cbwr="AVX2"))
+    pin_before_torch(Kernels())  # nothing pinned: nothing to refuse
 
 
 def test_a_plain_install_works_outside_the_checkout(setup: dict, tmp_path: Path) -> None:

@@ -1,79 +1,96 @@
-"""Each job's specification (cape.workflow.specs): exactly the settings it reads, in a small file
-named by their digest, read by the command's --spec."""
+"""The typed specifications (cape/specs): every field a job reads is a frozen dataclass or a
+plain value, every default is the packaged schema's, and a name the config lacks is one check."""
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
+import ast
+import dataclasses
+import importlib
+import pkgutil
+import typing
 
 import pytest
 
-from cape.config import config_from_args, load_config
+import cape.specs
+from cape.config import REPO_ROOT, schema_default
 from cape.errors import CapeError
-from cape.workflow import specs
+from cape.specs import Entry, entry_of
 
 
-@pytest.fixture(scope="module")
-def config() -> dict:
-    return load_config("config/config.yaml")
+def _spec_classes() -> list[type]:
+    classes = []
+    for info in pkgutil.iter_modules(cape.specs.__path__):
+        module = importlib.import_module(f"cape.specs.{info.name}")
+        classes += [
+            c
+            for c in vars(module).values()
+            if isinstance(c, type)
+            and dataclasses.is_dataclass(c)
+            and c.__module__ == module.__name__
+        ]
+    return classes
 
 
-def test_a_spec_file_is_named_by_its_content_and_written_once(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    monkeypatch.chdir(tmp_path)
-    first = specs.spec_file("train", '{"a": 1}')
-    assert Path(first).parent == Path("results/specs/train")
-    assert Path(first).read_text() == '{"a": 1}'
-    written = Path(first).stat().st_mtime_ns
-    assert specs.spec_file("train", '{"a": 1}') == first  # the same text: the same file ...
-    assert Path(first).stat().st_mtime_ns == written  # ... not written again
-    assert specs.spec_file("train", '{"a": 2}') != first  # another setting: another file
+def _loose(hint: object) -> bool:
+    """Whether a field's type lets a value through untyped: ``Any`` anywhere in it (a mapping
+    of ``Any``, ...). A registered class's ``Entry`` is typed: its values are JSON's."""
+    return hint is typing.Any or any(_loose(arg) for arg in typing.get_args(hint))
 
 
-def test_a_command_reads_its_spec_as_it_read_the_json(tmp_path: Path, config: dict) -> None:
-    text = specs.sections(config, "tracks", "data")
-    path = tmp_path / "spec.json"
-    path.write_text(text)
-    assert config_from_args(None, None, str(path)) == config_from_args(None, text)
-    with pytest.raises(CapeError, match=r"--spec .*missing\.json: cannot read"):
-        config_from_args(None, None, str(tmp_path / "missing.json"))
-    path.write_text("[1, 2]")
-    with pytest.raises(CapeError, match=r"--spec .*spec\.json must be a JSON object"):
-        config_from_args(None, None, str(path))
+def test_every_field_of_every_spec_is_typed() -> None:
+    classes = _spec_classes()
+    assert len(classes) >= 15
+    loose = []
+    for cls in classes:
+        assert cls.__dataclass_params__.frozen, cls  # type: ignore[attr-defined]
+        hints = typing.get_type_hints(cls, localns=vars(cape.specs))  # JSON names itself
+        loose += [f"{cls.__name__}.{name}: {h}" for name, h in hints.items() if _loose(h)]
+    assert loose == []
+    assert not _loose(Entry) and _loose(typing.Mapping[str, typing.Any])
 
 
-def test_sections_leave_out_the_grids_keys(config: dict) -> None:
-    chosen = json.loads(specs.sections(config, "training", "data"))
-    assert sorted(chosen) == ["data", "training"]
-    assert not {"replicates", "max_trainings"} & set(chosen["training"])
+def test_no_spec_restates_a_default() -> None:
+    """A default is the schema's (``setting``, ``schema_default``): no ``.get(key, value)`` with a
+    literal value (a number, a string, a truth value) in cape/specs."""
+    restated = []
+    for path in sorted((REPO_ROOT / "src" / "cape" / "specs").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if (
+                isinstance(node, ast.Call)
+                and isinstance(node.func, ast.Attribute)
+                and node.func.attr == "get"
+                and len(node.args) == 2
+                and isinstance(node.args[1], ast.Constant)
+                and node.args[1].value is not None
+            ):
+                restated.append(f"{path.name}:{node.lineno}")
+    assert restated == []
 
 
-def test_a_training_reads_its_models_entry_and_seed_not_its_label(config: dict) -> None:
-    spec = json.loads(specs.training(config, "epm", 7))
-    assert list(spec["models"]) == ["epm"]
-    assert "label" not in spec["models"]["epm"] and "color" not in spec["models"]["epm"]
-    assert spec["training"]["seed"] == 7
-    epm = {**config["models"]["epm"], "label": "mine"}
-    relabelled = {**config, "models": {**config["models"], "epm": epm}}
-    assert specs.training(relabelled, "epm", 7) == specs.training(config, "epm", 7)
-    assert specs.training(config, "epm", 8) != specs.training(config, "epm", 7)
+def test_a_setting_a_section_leaves_out_is_the_schemas(config: dict) -> None:
+    from cape.specs.models import ModelsSpec
+    from cape.specs.notebook import ScorecardSettings
+    from cape.specs.run import RolloutSettings
+    from cape.specs.study import StudySpec
+    from cape.specs.training import TrainingSpec
 
-
-def test_a_run_reads_only_the_models_its_plant_and_internal_model_read(config: dict) -> None:
-    spec = json.loads(specs.rollout(config, "nmpc", "epm", "epm"))
-    assert list(spec["controllers"]) == ["nmpc"]
-    assert sorted(spec["models"]) == ["epm"]
-    truth = json.loads(specs.rollout(config, "nmpc", "truth", "epm"))
-    assert sorted(truth["models"]) == ["ddm", "epm"]  # the true model has DDM's structure
-    solver = json.loads(specs.rollout(config, "nmpc", "epm", solver=True))
-    assert not set(specs.RUN_ONLY_KEYS) & set(solver["rollout"])
-
-
-def test_a_notebooks_parameters_are_strings_as_papermill_r_passes_them() -> None:
-    text = specs.notebook_parameters({"study": "learned", "replicates": [0, 1], "eta": 1.0})
-    assert json.loads(text) == {"study": "learned", "replicates": "0,1", "eta": "1.0"}
-    assert list(json.loads(text)) == ["study", "replicates", "eta"]
+    rollout = {k: v for k, v in config["rollout"].items() if k != "failure_window"}
+    settings = RolloutSettings.from_config({"rollout": rollout})
+    assert settings.failure_window == schema_default("rollout.failure_window")
+    training = {
+        k: v for k, v in config["training"].items() if k not in ("checkpoint_every", "replicates")
+    }
+    trimmed = {**config, "training": training}
+    assert TrainingSpec.from_config(trimmed, "epm").checkpoint_every == schema_default(
+        "training.checkpoint_every"
+    )
+    assert StudySpec.from_config(trimmed).replicates == schema_default("training.replicates")
+    assert ModelsSpec.from_config({}).multistep_horizon == schema_default(
+        "training.multistep_horizon"
+    )
+    assert ScorecardSettings() == ScorecardSettings.of({})
+    assert ScorecardSettings().power == schema_default("scorecard.power")
+    assert schema_default("study.studies.*.kind") == "closed_loop"
 
 
 def test_a_grid_without_its_sections_is_one_error_and_a_notebook_may_lack_them(config) -> None:
@@ -84,24 +101,44 @@ def test_a_grid_without_its_sections_is_one_error_and_a_notebook_may_lack_them(c
     with pytest.raises(CapeError, match="lacks the `disturbances` section"):
         StudySpec.from_config(sections)
     notebook = NotebookSpec.from_config(sections)
-    assert notebook.study is not None and notebook.study.replicates == 1
+    assert notebook.study is not None
+    assert notebook.study.replicates == schema_default("training.replicates")
     assert notebook.study.studies["learned"].controllers == tuple(
         config["study"]["studies"]["learned"]["controllers"]
     )
+    assert notebook.health is None and notebook.scorecard is None and notebook.disturbances is None
 
 
-def test_an_unwritable_spec_folder_is_one_line(tmp_path: Path, monkeypatch) -> None:
-    monkeypatch.chdir(tmp_path)
-    (tmp_path / "results").mkdir()
-    (tmp_path / "results" / "specs").write_text("a file where the folder belongs")
-    with pytest.raises(CapeError, match=r"results/specs.*cannot write the job's specification"):
-        specs.spec_file("train", '{"a": 1}')
+def test_a_notebooks_nested_settings_are_typed(config: dict) -> None:
+    from cape.specs.notebook import NotebookSpec, ScorecardSettings
+    from cape.specs.run import DisturbancesSpec
+    from cape.specs.training import HealthSettings, RmseBar
+
+    spec = NotebookSpec.from_config(config)
+    assert isinstance(spec.health, HealthSettings) and isinstance(spec.health.val_rmse_max, RmseBar)
+    assert spec.health.applies_to("ddm") and not spec.health.applies_to("dpm")
+    assert isinstance(spec.scorecard, ScorecardSettings)
+    assert spec.scorecard.margins["mean_speed"] == 3.0
+    assert isinstance(spec.disturbances, DisturbancesSpec)
+    assert spec.disturbances.eta == tuple(config["disturbances"]["eta"])
+    assert "eta" not in spec.disturbances.sources
 
 
-def test_a_file_of_yours_at_a_specs_name_is_never_replaced(tmp_path: Path, monkeypatch) -> None:
-    monkeypatch.chdir(tmp_path)
-    path = Path(specs.spec_file("train", '{"a": 1}'))
-    path.write_text("my notes")
-    with pytest.raises(CapeError, match="did not write; move it away"):
-        specs.spec_file("train", '{"a": 1}')
-    assert path.read_text() == "my notes"
+def test_a_name_the_config_lacks_is_one_check(config: dict) -> None:
+    from cape.specs.models import ModelsSpec
+    from cape.specs.run import RunSpec
+    from cape.specs.training import TrainingSpec
+
+    with pytest.raises(CapeError, match=r"--model gpt: not in the config's `models` \(ddm, dpm"):
+        TrainingSpec.from_config(config, "gpt")
+    with pytest.raises(CapeError, match=r"--model gpt: not in the config's `models`"):
+        ModelsSpec.from_config(config).entry("gpt")
+    with pytest.raises(CapeError, match=r"--controller mpc: not in the config's `controllers`"):
+        RunSpec.from_config(config, "mpc")
+    assert entry_of({"a": 1}, "a", "--x", "xs") == 1
+    said = [
+        str(path.relative_to(REPO_ROOT))
+        for path in (REPO_ROOT / "src" / "cape").rglob("*.py")
+        if "not in the config's" in path.read_text()
+    ]
+    assert said == ["src/cape/specs/__init__.py"]

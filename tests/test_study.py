@@ -15,6 +15,7 @@ from cape.cli import main
 from cape.errors import CapeError
 from cape.layout.record import write_run_files, write_timing
 from cape.layout.runs import RunId
+from cape.specs.run import DisturbancesSpec
 from cape.specs.study import StudySpec
 from cape.study.aggregate import collect_runs, mean_ci, summarise
 from cape.study.glance import at_a_glance
@@ -184,7 +185,7 @@ def test_the_success_grid_marks_full_partial_and_no_success() -> None:
 
 
 def test_config_tables_come_from_the_config(config: dict) -> None:
-    table3 = uncertainty_activation(config["disturbances"])
+    table3 = uncertainty_activation(DisturbancesSpec.from_config(config))
     assert table3["η"].tolist() == config["disturbances"]["eta"]
     assert table3.iloc[0, 1:].tolist() == ["–"] * 6  # η = 0: nothing active
     at2 = table3[table3["η"] == "2"].iloc[0]
@@ -290,7 +291,7 @@ def test_the_aggregation_reads_a_shared_run_where_the_workflow_computed_it(tmp_p
     _write_run(tmp_path, "learned", "epm", "epm", "nmpc", "0", 0, True, 7.4, 0.02)
     _write_run(tmp_path, "ablation", "epm", "truth", "nmpc", "0", 0, True, 7.5, 0.03)
     out = tmp_path / "runs.parquet"
-    as_the_rule_passes_it = json.dumps(config)  # cape.workflow.specs.grid
+    as_the_rule_passes_it = json.dumps(config)  # cape.workflow.job_files.JobFiles.write_grid
     main(["aggregate", "--root", str(tmp_path), "--out", str(out), "--summary",
           str(tmp_path / "summary.parquet"), "--config-json", as_the_rule_passes_it])  # fmt: skip
     runs = pd.read_parquet(out)

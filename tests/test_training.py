@@ -27,6 +27,7 @@ from cape.models.training import (
     build_model,
     train_model,
 )
+from cape.specs.training import TrainingCompile
 from cape.vehicle import GROUND_TRUTH
 
 TS = 0.02
@@ -178,8 +179,9 @@ def test_compiled_training_is_reproducible_and_follows_eager_training(
     graph is the same kind."""
     head = {"width": 32, "layers": 2, "activation": "gelu", "layer_norm_after": [1]}
     spec = {**config["models"]["epm"], "gru": {"hidden": 7, "layers": 2}, "head": head}
-    settings = {**config["training"]["compile"], "cache": str(tmp_path / "inductor")}
-    assert settings["enabled"] and settings["cpp_wrapper"]
+    given = TrainingCompile.from_config(config)
+    settings = TrainingCompile(given.enabled, given.cpp_wrapper, str(tmp_path / "inductor"))
+    assert settings.enabled and settings.cpp_wrapper
     data = small_data[7]
     data = TrainingData(data.train.subset(np.arange(90)), data.val, data.scaler)
 
@@ -385,7 +387,7 @@ def test_compiled_training_without_a_compiler_says_how_to_train_eagerly(
     import torch._inductor.config as inductor
 
     monkeypatch.setattr(inductor.cpp, "cxx", (str(tmp_path / "no-such-g++"),))
-    settings = {"enabled": True, "cache": str(tmp_path / "inductor")}  # cold: it must compile
+    settings = TrainingCompile(True, False, str(tmp_path / "inductor"))  # cold: it must compile
     with pytest.raises(CapeError, match=r"training\.compile\.enabled: false"):
         train_model("dpm", config["models"]["dpm"], small_data[10], ts=TS, seed=0, epochs=1,
                     progress=False, compile_settings=settings)  # fmt: skip

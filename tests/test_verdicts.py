@@ -16,6 +16,7 @@ from scipy import stats
 from cape.layout.runs import RunId
 from cape.models.health import outliers, training_checks
 from cape.specs.study import StudySpec
+from cape.specs.training import HealthSettings, RmseBar, Stall
 from cape.study.calibration import exclusion_rate, nested, t_over_draws
 from cape.study.claims import ClosedLoopClaim, Context, Pair, controllers
 from cape.study.grid import canonical, study_runs
@@ -266,8 +267,7 @@ def test_one_draw_says_its_verdicts_are_this_draws() -> None:
 
 
 def test_a_failed_training_is_flagged_by_each_check() -> None:
-    settings = {"models": ["ddm", "epm"], "val_rmse_max": {"vx": 1e-3, "vy": 1e-3, "omega": 2e-3},
-                "stall": {"after": 5, "min_drop": 0.01}, "outlier_factor": 10}  # fmt: skip
+    settings = HealthSettings(("ddm", "epm"), RmseBar(1e-3, 1e-3, 2e-3), Stall(5, 0.01), 10)
     good = {"vx": 3e-5, "vy": 1e-4, "omega": 8e-4}
     falling = list(np.geomspace(1.0, 1e-6, 50))
     assert training_checks("ddm", good, falling, settings) == []

@@ -13,7 +13,7 @@ import copy
 import json
 import math
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -137,13 +137,22 @@ def _check_seeds(config: dict[str, Any], source: str) -> None:
 
 
 def schema_default(key: str) -> Any:
-    """The config schema's default of ``key`` (dotted, e.g. ``study.seed_stride``), for a
-    builder given sections validated without their defaults filled in (``partial``: a
-    ``--config-json``, a notebook's or a test's sections); ``KeyError`` when it has none."""
+    """The config schema's default of ``key`` (dotted, e.g. ``study.seed_stride``; ``*`` for any
+    entry of a section of named entries, e.g. ``study.studies.*.kind``), for a builder given
+    sections validated without their defaults filled in (``partial``: a ``--config-json``, a
+    notebook's or a test's sections): the schema is the one place a default is written.
+    ``KeyError`` when it has none."""
     node: Any = schemas.load_schema(schemas.CONFIG)
     for part in key.split("."):
-        node = node["properties"][part]
+        node = node["additionalProperties"] if part == "*" else node["properties"][part]
     return copy.deepcopy(node["default"])
+
+
+def setting(section: Mapping[str, Any], key: str, where: str) -> Any:
+    """``section[key]``, or the schema's default of ``where.key`` (of ``key``: ``where`` empty,
+    the top level) when the section lacks it (sections validated without their defaults
+    filled in: a job file, a ``--config-json``)."""
+    return section[key] if key in section else schema_default(f"{where}.{key}".strip("."))
 
 
 ETA_RANGE = (0.0, 5.0)

@@ -1,5 +1,8 @@
-# Shared: the config validated, and the study's workflow logic (cape.workflow.study), which the
-# rules call as W.<method>; job specifications are cape.workflow.specs.
+# Shared: the config validated (cape.workflow.start) and the study's workflow built once
+# (cape.workflow.targets). The rules read its stages by name: TRACKS (cape.workflow.tracks),
+# TRAININGS (trainings and draws), RUNS (rollouts and solvers), NOTEBOOKS (tables and
+# notebooks), QUESTION (question_runs); W holds the targets that span them; each job's file
+# (its --spec) comes from JOBS (cape.workflow.job_files).
 
 import os
 import shlex
@@ -8,12 +11,11 @@ import sys
 from snakemake.io import report as in_report  # `report(` opening a line is Snakemake's directive
 
 from cape.layout import paths
-from cape.study.outputs import WHOLE_STUDY_NOTEBOOKS
-from cape.workflow import specs
-from cape.workflow.study import NOTEBOOKS as DECLARED
-from cape.workflow.study import RUN_FOLDER, RUN_LOG, RUN_STEM, TABLE_EXTS
-from cape.workflow.study import StudyWorkflow, prepare, refusals, run_notebook
-from cape.workflow.study import job_spec as _job_spec
+from cape.workflow.job_files import JobFiles
+from cape.workflow.notebooks import DECLARED, TABLE_EXTS, run_notebook
+from cape.workflow.runs import RUN_FOLDER, RUN_LOG, RUN_STEM
+from cape.workflow.start import prepare, refusals
+from cape.workflow.targets import StudyWorkflow
 
 with refusals():  # a bad config value: its one-line reason, no traceback
     prepare(config, workflow.is_main_process)
@@ -23,19 +25,15 @@ with refusals():  # a bad config value: its one-line reason, no traceback
         outputs=lambda rule, **wildcards: [str(p).format(**wildcards) for p in getattr(rules, rule).output],
         health=lambda model, seed: checkpoints.training_health.get(model=model, training_seed=seed).output[0],
     )
-SCOPES = W.scopes
+    JOBS = JobFiles(config)
+TRACKS, TRAININGS, RUNS, NOTEBOOKS, QUESTION = W.tracks, W.trainings, W.runs, W.notebooks, W.question
+SCOPES = NOTEBOOKS.scopes
 CAPE_ENV = "../envs/cape.yaml"  # every rule's software environment for `--sdm conda`
-NOTEBOOKS = os.path.join(workflow.basedir, "notebooks")  # beside the Snakefile, whatever -d is
+NOTEBOOK_DIR = os.path.join(workflow.basedir, "notebooks")  # beside the Snakefile, whatever -d is
 
 
 wildcard_constraints:
     **W.constraints(),
-
-
-def job_spec(job, text):
-    """The path of a job's specification (cape.workflow.specs): its command reads the file. A
-    refusal is one line on stderr (cape.workflow.study.job_spec), not Snakemake's frames."""
-    return _job_spec(job, text)
 
 
 def reported_figures(notebook, folder, caption, category):

@@ -3,11 +3,11 @@
 
 rule dataset:
     input:
-        W.track_files(),
+        TRACKS.files(),
     output:
         paths.DATASET,
     params:
-        spec=lambda wildcards: job_spec("dataset", specs.sections(config, "tracks", "data")),
+        spec=lambda wildcards: JOBS.write_sections("dataset", "tracks", "data"),
     conda:
         CAPE_ENV
     log:

@@ -3,14 +3,14 @@
 
 rule figure_tracks:
     input:
-        W.track_files(),
-        data=[paths.dataset(t) for t in W.data_tracks],
+        TRACKS.files(),
+        data=[paths.dataset(t) for t in TRACKS.data_tracks],
     output:
         pdf=paths.figures("tracks_and_data.pdf"),
         png=paths.figures("tracks_and_data.png"),
     params:
-        data=" ".join(f"--data {shlex.quote(f'{t}={paths.dataset(t)}')}" for t in W.data_tracks),
-        spec=lambda wildcards: job_spec("figure_tracks", specs.sections(config, "tracks", "data")),
+        data=" ".join(f"--data {shlex.quote(f'{t}={paths.dataset(t)}')}" for t in TRACKS.data_tracks),
+        spec=lambda wildcards: JOBS.write_sections("figure_tracks", "tracks", "data"),
     conda:
         CAPE_ENV
     log:

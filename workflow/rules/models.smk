@@ -6,21 +6,21 @@ rule train:
     """One training of a model: its k-th has seed training.seed + k (SPEC §4). Whether it
     works is its health check's; which trainings become draws, the draw rule's."""
     input:
-        data=paths.dataset(W.train_track),
+        data=paths.dataset(TRACKS.train_track),
     output:
         weights=f"{paths.TRAINING}/{paths.WEIGHTS}",
         meta=f"{paths.TRAINING}/{paths.META}",
         losses=f"{paths.TRAINING}/{paths.LOSSES}",
     params:
-        spec=lambda wildcards: job_spec("train", specs.training(config, wildcards.model, int(wildcards.training_seed))),
+        spec=lambda wildcards: JOBS.write_training(wildcards.model, int(wildcards.training_seed)),
         out=lambda wildcards, output: os.path.dirname(output.weights),
-    threads: W.threads
-    priority: lambda wildcards: W.training_priority(wildcards.model)
+    threads: TRAININGS.threads
+    priority: lambda wildcards: TRAININGS.training_priority(wildcards.model)
     resources:
         runtime=240,
         # how often the training writes its resumable checkpoint: a resource, not a param,
         # since it changes no result and so must not retrain a finished model
-        checkpoint_every=lambda wildcards: str(W.checkpoint_every),
+        checkpoint_every=lambda wildcards: str(TRAININGS.checkpoint_every),
     conda:
         CAPE_ENV
     log:
@@ -41,11 +41,11 @@ checkpoint training_health:
         weights=f"{paths.TRAINING}/{paths.WEIGHTS}",
         meta=f"{paths.TRAINING}/{paths.META}",
         losses=f"{paths.TRAINING}/{paths.LOSSES}",
-        data=paths.dataset(W.train_track),
+        data=paths.dataset(TRACKS.train_track),
     output:
         f"{paths.TRAINING}/{paths.HEALTH}",
     params:
-        spec=lambda wildcards: job_spec("training_health", specs.health(config, wildcards.model)),
+        spec=lambda wildcards: JOBS.write_health("training_health", wildcards.model),
         folder=lambda wildcards, input: os.path.dirname(input.weights),
     conda:
         CAPE_ENV
@@ -61,7 +61,7 @@ rule draw:
     training.max_trainings (SPEC §4); the draw's folder is what every later rule reads. It
     reads every consulted training (its record is checked against its files and the bar)."""
     input:
-        unpack(W.draw_inputs),
+        unpack(TRAININGS.draw_inputs),
     output:
         weights=f"{paths.MODEL}/{paths.WEIGHTS}",
         meta=f"{paths.MODEL}/{paths.META}",
@@ -73,11 +73,11 @@ rule draw:
             f"--training {shlex.quote(os.path.dirname(h))}" for h in getattr(input, "health", [])
         ),
         out=lambda wildcards, output: os.path.dirname(output.weights),
-        cap=W.draw_max_trainings,
+        cap=TRAININGS.draw_max_trainings,
         # the bar each consulted record's verdict is checked against (a changed bar re-decides
         # the draws), and the records' content (a record changed in place does)
-        spec=lambda wildcards: job_spec("draw", specs.health(config, wildcards.model)),
-        records=lambda wildcards, input: W.draw_records(getattr(input, "health", [])),
+        spec=lambda wildcards: JOBS.write_health("draw", wildcards.model),
+        records=lambda wildcards, input: TRAININGS.draw_records(getattr(input, "health", [])),
     conda:
         CAPE_ENV
     log:
@@ -91,11 +91,11 @@ rule freeze:
     input:
         weights=f"{paths.MODEL}/{paths.WEIGHTS}",
         meta=f"{paths.MODEL}/{paths.META}",
-        data=paths.dataset(W.train_track),
+        data=paths.dataset(TRACKS.train_track),
     output:
         f"{paths.MODEL}/{paths.FROZEN_PHI}",
     params:
-        spec=lambda wildcards: job_spec("freeze", specs.sections(config, "data")),
+        spec=lambda wildcards: JOBS.write_sections("freeze", "data"),
         folder=lambda wildcards, input: os.path.dirname(input.weights),
     conda:
         CAPE_ENV
@@ -115,7 +115,7 @@ rule export_network:
     localrule: True
     params:
         folder=lambda wildcards, input: os.path.dirname(input.weights),
-        spec=lambda wildcards: job_spec("export_network", specs.export(config)),
+        spec=lambda wildcards: JOBS.write_export(),
     conda:
         CAPE_ENV
     log:
@@ -127,16 +127,16 @@ rule export_network:
 
 rule openloop_table:
     input:
-        models=lambda wildcards: W.trained_models(int(wildcards.replicate)),
-        train=paths.dataset(W.train_track),
-        test=paths.dataset(W.test_track),
+        models=lambda wildcards: TRAININGS.trained_models(int(wildcards.replicate)),
+        train=paths.dataset(TRACKS.train_track),
+        test=paths.dataset(TRACKS.test_track),
     output:
         csv=f"{paths.REPLICATE_TABLES}/table04_openloop_rmse.csv",
         md=f"{paths.REPLICATE_TABLES}/table04_openloop_rmse.md",
         tex=f"{paths.REPLICATE_TABLES}/table04_openloop_rmse.tex",
     params:
-        models=lambda wildcards: W.model_args(int(wildcards.replicate)),
-        spec=lambda wildcards: job_spec("openloop_table", specs.sections(config, "data", "training")),
+        models=lambda wildcards: TRAININGS.model_args(int(wildcards.replicate)),
+        spec=lambda wildcards: JOBS.write_sections("openloop_table", "data", "training"),
     conda:
         CAPE_ENV
     log:
@@ -150,15 +150,15 @@ rule openloop_table:
 
 rule complexity_table:
     input:
-        models=lambda wildcards: W.trained_models(int(wildcards.replicate)),
-        test=paths.dataset(W.test_track),
+        models=lambda wildcards: TRAININGS.trained_models(int(wildcards.replicate)),
+        test=paths.dataset(TRACKS.test_track),
     output:
         csv=f"{paths.REPLICATE_TABLES}/table01_model_complexity.csv",
         md=f"{paths.REPLICATE_TABLES}/table01_model_complexity.md",
         tex=f"{paths.REPLICATE_TABLES}/table01_model_complexity.tex",
     params:
-        models=lambda wildcards: W.model_args(int(wildcards.replicate)),
-        spec=lambda wildcards: job_spec("complexity_table", specs.sections(config, "training")),
+        models=lambda wildcards: TRAININGS.model_args(int(wildcards.replicate)),
+        spec=lambda wildcards: JOBS.write_sections("complexity_table", "training"),
     conda:
         CAPE_ENV
     log:
@@ -172,16 +172,16 @@ rule complexity_table:
 
 rule figure_models:
     input:
-        models=W.trained_models(),
-        test=paths.dataset(W.test_track),
+        models=TRAININGS.trained_models(),
+        test=paths.dataset(TRACKS.test_track),
     output:
         phi_pdf=paths.figures("model_phi_ethzmobil.pdf"),
         phi_png=paths.figures("model_phi_ethzmobil.png"),
         curves_pdf=paths.figures("training_curves.pdf"),
         curves_png=paths.figures("training_curves.png"),
     params:
-        models=W.model_args(),
-        spec=lambda wildcards: job_spec("figure_models", specs.sections(config, "data", "models")),
+        models=TRAININGS.model_args(),
+        spec=lambda wildcards: JOBS.write_sections("figure_models", "data", "models"),
     conda:
         CAPE_ENV
     log:

@@ -7,7 +7,7 @@
 rule question:
     """The runs of the question's current stage (`cape question` runs it, stage by stage)."""
     input:
-        W.question_targets(),
+        QUESTION.targets(),
     localrule: True
 
 
@@ -15,16 +15,16 @@ rule notebook_question:
     """Figure 15 and table 10: the question's rows through its looks, from the looks.csv that
     `cape question` writes after each stage (it runs this rule when it stops)."""
     input:
-        notebook=f"{NOTEBOOKS}/question.ipynb",
+        notebook=f"{NOTEBOOK_DIR}/question.ipynb",
         looks=paths.QUESTION_LOOKS,
     output:
-        W.figures("question", paths.scoped(paths.QUESTION, "figures"), ".pdf"),
-        W.figures("question", paths.scoped(paths.QUESTION, "figures"), ".png"),
-        W.tables("question", paths.scoped(paths.QUESTION, "tables")),
+        NOTEBOOKS.figures("question", paths.scoped(paths.QUESTION, "figures"), ".pdf"),
+        NOTEBOOKS.figures("question", paths.scoped(paths.QUESTION, "figures"), ".png"),
+        NOTEBOOKS.tables("question", paths.scoped(paths.QUESTION, "tables")),
         notebook=paths.scoped(paths.QUESTION, "notebooks", "question.ipynb"),
         html=paths.scoped(paths.QUESTION, "notebooks", "question.html"),
     params:
-        nb=lambda wildcards, input: W.papermill_args(
+        nb=lambda wildcards, input: JOBS.write_parameters(
             "notebook_question",
             looks_path=input.looks,
             figure_dir=paths.scoped(paths.QUESTION, "figures"),
@@ -36,4 +36,4 @@ rule notebook_question:
         paths.scoped(paths.QUESTION, "logs", "notebook_question.log"),
     localrule: True
     shell:
-        run_notebook("{params.nb}")
+        run_notebook("-f {params.nb:q}")

@@ -3,15 +3,15 @@
 
 rule raceline:
     input:
-        W.track_files(),
+        TRACKS.files(),
     output:
         line=paths.RACELINE,
         pdf=paths.figures("raceline_{track}.pdf"),
         png=paths.figures("raceline_{track}.png"),
     params:
-        spec=lambda wildcards: job_spec("raceline", specs.sections(config, "tracks", "reference")),
+        spec=lambda wildcards: JOBS.write_sections("raceline", "tracks", "reference"),
         # checked against the line's ideal lap before any run starts (a limit no lap can meet)
-        time_limit=W.time_limit,
+        time_limit=TRACKS.time_limit,
     conda:
         CAPE_ENV
     log:

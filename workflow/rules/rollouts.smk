@@ -3,14 +3,12 @@
 
 rule solver:
     input:
-        unpack(W.solver_inputs),
+        unpack(RUNS.solver_inputs),
     output:
         paths.SOLVER,
     params:
-        spec=lambda wildcards: job_spec(
-            "solver", specs.rollout(config, wildcards.controller, wildcards.internal, solver=True)
-        ),
-        models=lambda wildcards: W.model_folder_args(wildcards, [wildcards.internal]),
+        spec=lambda wildcards: JOBS.write_solver(wildcards.controller, wildcards.internal),
+        models=lambda wildcards: RUNS.model_folder_args(wildcards, [wildcards.internal]),
     conda:
         CAPE_ENV
     log:
@@ -24,18 +22,16 @@ rule solver:
 
 rule rollout:
     input:
-        unpack(W.rollout_inputs),
+        unpack(RUNS.rollout_inputs),
     output:
         metrics=f"{RUN_FOLDER}/{paths.METRICS}",
         timing=f"{RUN_FOLDER}/{paths.TIMING}",
         series=f"{RUN_FOLDER}/{paths.SERIES}",
     params:
-        spec=lambda wildcards: job_spec(
-            "rollout", specs.rollout(config, wildcards.controller, wildcards.plant, wildcards.internal)
-        ),
+        spec=lambda wildcards: JOBS.write_rollout(wildcards.controller, wildcards.plant, wildcards.internal),
         out=lambda wildcards, output: os.path.dirname(output.metrics),
-        models=lambda wildcards: W.model_folder_args(wildcards, W.rollout_models(wildcards)),
-        data=lambda wildcards, input: W.training_data_arg(input),
+        models=lambda wildcards: RUNS.model_folder_args(wildcards, RUNS.rollout_models(wildcards)),
+        data=lambda wildcards, input: RUNS.training_data_arg(input),
     conda:
         CAPE_ENV
     log:
@@ -53,8 +49,8 @@ rule rollout:
 rule rollouts:
     """Every closed-loop run of the default target (replicate 0; a named target)."""
     input:
-        W.solver_outputs(W.computed_runs({0})),
-        W.run_outputs(W.computed_runs({0})),
+        RUNS.solver_outputs(RUNS.computed_runs({0})),
+        RUNS.run_outputs(RUNS.computed_runs({0})),
     localrule: True
 
 
@@ -63,12 +59,12 @@ rule figure_rollout:
     input:
         metrics=f"{RUN_FOLDER}/{paths.METRICS}",
         series=f"{RUN_FOLDER}/{paths.SERIES}",
-        raceline=W.raceline_path(),
+        raceline=TRACKS.raceline(),
     output:
         pdf=f"{paths.ROLLOUT_FIGURES}/{RUN_STEM}.pdf",
         png=f"{paths.ROLLOUT_FIGURES}/{RUN_STEM}.png",
     params:
-        spec=lambda wildcards: job_spec("figure_rollout", specs.sections(config, "tracks", "data", "reference")),
+        spec=lambda wildcards: JOBS.write_sections("figure_rollout", "tracks", "data", "reference"),
         run=lambda wildcards, input: os.path.dirname(input.metrics),
     conda:
         CAPE_ENV

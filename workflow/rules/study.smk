@@ -10,12 +10,12 @@ rule aggregate:
     success rates in <scope>/study/summary.parquet (results/: replicate 0; results/replicates/:
     every training replicate)."""
     input:
-        lambda wildcards: W.rollout_targets(set(SCOPES[wildcards.scope])),
+        lambda wildcards: RUNS.rollout_targets(set(SCOPES[wildcards.scope])),
     output:
         runs=paths.STUDY_RUNS,
         summary=paths.STUDY_SUMMARY,
     params:
-        spec=lambda wildcards: job_spec("aggregate", specs.grid(config)),
+        spec=lambda wildcards: JOBS.write_grid(),
         replicates=lambda wildcards: " ".join(map(str, SCOPES[wildcards.scope])),
         models=paths.MODELS,
     conda:
@@ -32,17 +32,17 @@ rule aggregate:
 rule notebook_setup:
     """Figure 1 and tables 2–3, from the config alone."""
     input:
-        notebook=f"{NOTEBOOKS}/setup.ipynb",
+        notebook=f"{NOTEBOOK_DIR}/setup.ipynb",
     output:
         *reported_figures("setup", paths.FIGURES, "../report/fig01.rst", "Set-up"),
-        W.figures("setup", paths.FIGURES, ".pdf"),
-        W.tables("setup", paths.TABLES),
+        NOTEBOOKS.figures("setup", paths.FIGURES, ".pdf"),
+        NOTEBOOKS.tables("setup", paths.TABLES),
         notebook=paths.notebooks("setup.ipynb"),
         html=paths.notebooks("setup.html"),
     params:
-        nb=lambda wildcards: W.papermill_args(
+        nb=lambda wildcards: JOBS.write_parameters(
             "notebook_setup",
-            spec=W.notebook_spec("setup"),
+            spec=JOBS.write_notebook("setup"),
             figure_dir=paths.FIGURES,
             table_dir=paths.TABLES,
         ),
@@ -52,31 +52,31 @@ rule notebook_setup:
         paths.log("notebooks", "setup.log"),
     localrule: True
     shell:
-        run_notebook("{params.nb}")
+        run_notebook("-f {params.nb:q}")
 
 
 rule notebook_closed_loop:
     """Figures 2, 3, 7–11 and tables 6–7 of a study of kind closed_loop (the learned and
     ground-truth studies, or one a user adds)."""
     input:
-        notebook=f"{NOTEBOOKS}/closed_loop.ipynb",
+        notebook=f"{NOTEBOOK_DIR}/closed_loop.ipynb",
         runs=paths.study_runs(),
         summary=paths.study_summary(),
-        raceline=W.raceline_path(),
-        series=lambda wildcards: W.example_series(wildcards.study),
+        raceline=TRACKS.raceline(),
+        series=lambda wildcards: NOTEBOOKS.example_series(wildcards.study),
     output:
         *reported_figures("closed_loop", paths.figures("{study}"), "../report/closed_loop.rst", "{study} study"),
-        W.figures("closed_loop", paths.figures("{study}"), ".pdf"),
-        W.tables("closed_loop", paths.tables("{study}")),
+        NOTEBOOKS.figures("closed_loop", paths.figures("{study}"), ".pdf"),
+        NOTEBOOKS.tables("closed_loop", paths.tables("{study}")),
         notebook=paths.notebooks("{study}.ipynb"),
         html=paths.notebooks("{study}.html"),
     wildcard_constraints:
-        study=W.studies_of_kind("closed_loop"),
+        study=NOTEBOOKS.studies_of_kind("closed_loop"),
     params:
-        nb=lambda wildcards, input: W.papermill_args(
+        nb=lambda wildcards, input: JOBS.write_parameters(
             "notebook_closed_loop",
             study=wildcards.study,
-            spec=W.notebook_spec("closed_loop"),
+            spec=JOBS.write_notebook("closed_loop"),
             runs_path=input.runs,
             summary_path=input.summary,
             raceline=input.raceline,
@@ -91,28 +91,28 @@ rule notebook_closed_loop:
     benchmark:
         paths.benchmark("notebooks", "{study}.tsv")
     shell:
-        run_notebook("{params.nb}")
+        run_notebook("-f {params.nb:q}")
 
 
 rule notebook_bicycle:
     """Table 5 and figures 5–6 of a study of kind bicycle: its fixed-parameter plants against
     the paper's study's learned EPM."""
     input:
-        notebook=f"{NOTEBOOKS}/bicycle.ipynb",
+        notebook=f"{NOTEBOOK_DIR}/bicycle.ipynb",
         summary=paths.study_summary(),
     output:
         *reported_figures("bicycle", paths.figures("{study}"), "../report/bicycle.rst", "{study} study"),
-        W.figures("bicycle", paths.figures("{study}"), ".pdf"),
-        W.tables("bicycle", paths.tables("{study}")),
+        NOTEBOOKS.figures("bicycle", paths.figures("{study}"), ".pdf"),
+        NOTEBOOKS.tables("bicycle", paths.tables("{study}")),
         notebook=paths.notebooks("{study}.ipynb"),
         html=paths.notebooks("{study}.html"),
     wildcard_constraints:
-        study=W.studies_of_kind("bicycle"),
+        study=NOTEBOOKS.studies_of_kind("bicycle"),
     params:
-        nb=lambda wildcards, input: W.papermill_args(
+        nb=lambda wildcards, input: JOBS.write_parameters(
             "notebook_bicycle",
             study=wildcards.study,
-            spec=W.notebook_spec("bicycle"),
+            spec=JOBS.write_notebook("bicycle"),
             summary_path=input.summary,
             figure_dir=paths.figures(wildcards.study),
             table_dir=paths.tables(wildcards.study),
@@ -123,28 +123,28 @@ rule notebook_bicycle:
         paths.log("notebooks", "{study}.log"),
     localrule: True
     shell:
-        run_notebook("{params.nb}")
+        run_notebook("-f {params.nb:q}")
 
 
 rule notebook_ablation:
     """Figure 4 of a study of kind ablation: internal model against plant trajectories."""
     input:
-        notebook=f"{NOTEBOOKS}/ablation.ipynb",
+        notebook=f"{NOTEBOOK_DIR}/ablation.ipynb",
         runs=paths.study_runs(),
-        raceline=W.raceline_path(),
-        series=lambda wildcards: W.example_series(wildcards.study),
+        raceline=TRACKS.raceline(),
+        series=lambda wildcards: NOTEBOOKS.example_series(wildcards.study),
     output:
         *reported_figures("ablation", paths.figures("{study}"), "../report/fig04.rst", "{study} study"),
-        W.figures("ablation", paths.figures("{study}"), ".pdf"),
+        NOTEBOOKS.figures("ablation", paths.figures("{study}"), ".pdf"),
         notebook=paths.notebooks("{study}.ipynb"),
         html=paths.notebooks("{study}.html"),
     wildcard_constraints:
-        study=W.studies_of_kind("ablation"),
+        study=NOTEBOOKS.studies_of_kind("ablation"),
     params:
-        nb=lambda wildcards, input: W.papermill_args(
+        nb=lambda wildcards, input: JOBS.write_parameters(
             "notebook_ablation",
             study=wildcards.study,
-            spec=W.notebook_spec("ablation"),
+            spec=JOBS.write_notebook("ablation"),
             runs_path=input.runs,
             raceline=input.raceline,
             series_paths=input.series,
@@ -156,25 +156,25 @@ rule notebook_ablation:
         paths.log("notebooks", "{study}.log"),
     localrule: True
     shell:
-        run_notebook("{params.nb}")
+        run_notebook("-f {params.nb:q}")
 
 
 rule notebook_failures:
     """Figure 12 of one study: where its failed runs left the lap, on the track map."""
     input:
-        notebook=f"{NOTEBOOKS}/failures.ipynb",
+        notebook=f"{NOTEBOOK_DIR}/failures.ipynb",
         runs=paths.study_runs(),
-        raceline=W.raceline_path(),
+        raceline=TRACKS.raceline(),
     output:
         *reported_figures("failures", paths.figures("{study}"), "../report/failures.rst", "{study} study"),
-        W.figures("failures", paths.figures("{study}"), ".pdf"),
+        NOTEBOOKS.figures("failures", paths.figures("{study}"), ".pdf"),
         notebook=paths.notebooks("failures_{study}.ipynb"),
         html=paths.notebooks("failures_{study}.html"),
     params:
-        nb=lambda wildcards, input: W.papermill_args(
+        nb=lambda wildcards, input: JOBS.write_parameters(
             "notebook_failures",
             study=wildcards.study,
-            spec=W.notebook_spec("failures"),
+            spec=JOBS.write_notebook("failures"),
             runs_path=input.runs,
             raceline=input.raceline,
             figure_dir=paths.figures(wildcards.study),
@@ -185,7 +185,7 @@ rule notebook_failures:
         paths.log("notebooks", "failures_{study}.log"),
     localrule: True
     shell:
-        run_notebook("{params.nb}")
+        run_notebook("-f {params.nb:q}")
 
 
 rule notebook_scorecard:
@@ -194,24 +194,24 @@ rule notebook_scorecard:
     figure, tables 4 and 1 over the replicates, and RESULTS.md; tables 8 and 9 computed from the
     scope's evidence folder, which it writes first (they re-derive from it alone)."""
     input:
-        unpack(W.scorecard_inputs),
-        notebook=f"{NOTEBOOKS}/scorecard.ipynb",
+        unpack(NOTEBOOKS.scorecard_inputs),
+        notebook=f"{NOTEBOOK_DIR}/scorecard.ipynb",
         runs=paths.STUDY_RUNS,
-        raceline=W.raceline_path(),
+        raceline=TRACKS.raceline(),
     output:
         report(paths.scoped("{scope}", "tables", "table08_scorecard.md"), caption="../report/scorecard.rst", category="Claims"),
         *(paths.evidence("{scope}", name) for name in paths.EVIDENCE_FILES),
         multiext(paths.scoped("{scope}", "tables", "table08_scorecard"), ".csv", ".tex"),
-        *(paths.scoped("{scope}", "tables", f"{name}{ext}") for name in WHOLE_STUDY_NOTEBOOKS["scorecard"].tables if name != "table08_scorecard" for ext in TABLE_EXTS),
+        *(paths.scoped("{scope}", "tables", f"{name}{ext}") for name in DECLARED["scorecard"].tables if name != "table08_scorecard" for ext in TABLE_EXTS),
         *reported_figures("scorecard", paths.scoped("{scope}", "figures"), "../report/scorecard.rst", "Claims"),
-        W.figures("scorecard", paths.scoped("{scope}", "figures"), ".pdf"),
+        NOTEBOOKS.figures("scorecard", paths.scoped("{scope}", "figures"), ".pdf"),
         report(paths.GLANCE, caption="../report/glance.rst", category="Claims"),
         notebook=paths.scoped("{scope}", "notebooks", "scorecard.ipynb"),
         html=paths.scoped("{scope}", "notebooks", "scorecard.html"),
     params:
-        nb=lambda wildcards, input: W.papermill_args(
+        nb=lambda wildcards, input: JOBS.write_parameters(
             "notebook_scorecard",
-            spec=W.notebook_spec("scorecard"),
+            spec=JOBS.write_notebook("scorecard"),
             runs_path=input.runs,
             raceline=input.raceline,
             replicates=SCOPES[wildcards.scope],
@@ -229,13 +229,13 @@ rule notebook_scorecard:
         paths.scoped("{scope}", "logs", "notebooks", "scorecard.log"),
     localrule: True
     shell:
-        run_notebook("{params.nb}")
+        run_notebook("-f {params.nb:q}")
 
 
 rule study:
     """Every table, figure and executed notebook of the study (a named target)."""
     input:
-        W.study_targets(),
+        NOTEBOOKS.study_targets(),
     localrule: True
 
 
@@ -251,5 +251,5 @@ rule replicates:
 # A scope's runs.parquet whose runs are not all there: say which target rebuilds it
 # (cape/study/stale.py).
 if workflow.is_main_process:
-    for _message in W.stale_summaries():
+    for _message in NOTEBOOKS.stale_summaries():
         print(_message, file=sys.stderr)

@@ -3,9 +3,9 @@
 
 rule tracks:
     output:
-        W.track_files(),
+        TRACKS.files(),
     params:
-        spec=lambda wildcards: job_spec("tracks", specs.sections(config, "tracks")),
+        spec=lambda wildcards: JOBS.write_sections("tracks", "tracks"),
     conda:
         CAPE_ENV
     log:

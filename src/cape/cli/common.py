@@ -246,15 +246,6 @@ def _model_folders(args: argparse.Namespace) -> Any:
     return ModelFolders(Path(root), named)
 
 
-def _entry(name: str, entries: Any, option: str, field: str) -> Any:
-    """The config entry ``name`` of ``entries`` (the section ``field``), or an error naming the
-    option, the field and the names it has."""
-    if name not in entries:
-        raise CapeError(f"{option} {name}: not in the config's `{field}` "
-                        f"({', '.join(sorted(entries))})")  # fmt: skip
-    return entries[name]
-
-
 def _config(args: argparse.Namespace) -> dict[str, Any]:
     from cape.config import config_from_args
 

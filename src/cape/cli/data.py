@@ -15,13 +15,13 @@ from cape.cli.common import (
     _add_tracks_dir,
     _claim,
     _config,
-    _entry,
     _files,
     _tracks_dir,
     bounded,
     command,
 )
 from cape.errors import CapeError
+from cape.specs import entry_of
 
 
 def _tracks_arguments(p: argparse.ArgumentParser) -> None:
@@ -77,10 +77,10 @@ def cmd_data(args: argparse.Namespace) -> None:
     from cape.vehicle.params import GROUND_TRUTH
 
     spec = DataSpec.from_config(_config(args))
-    raceline_file = _entry(args.track, spec.racelines, "--track", "data.tracks")
+    raceline_file = entry_of(spec.racelines, args.track, "--track", "data.tracks")
     _claim(args, Output(Path(args.out), "data set", args.track, (".npz",)))
     tracks_dir = _tracks_dir(args, spec.tracks)
-    settings = ProtocolSettings.from_config(spec.data, args.track)
+    settings = ProtocolSettings.of(spec.data, args.track)
     raceline = load_raceline(tracks_dir, raceline_file)
     dataset = generate_dataset(raceline, GROUND_TRUTH, settings)
     save_npz(args.out, **dataset)
@@ -168,7 +168,7 @@ def cmd_raceline(args: argparse.Namespace) -> None:
 
     spec = RacelineSpec.from_config(_config(args))
     settings = spec.reference
-    entry = _entry(args.track, spec.tracks.catalogue, "--track", "tracks.catalogue")
+    entry = entry_of(spec.tracks.catalogue, args.track, "--track", "tracks.catalogue")
     _claim(args, Output(Path(args.out), "raceline", args.track, (".npz",)),
            *_files(args.figure or [], "raceline figure", FIGURE_SUFFIXES, "--figure"))  # fmt: skip
     tracks_dir = _tracks_dir(args, spec.tracks)

@@ -29,6 +29,7 @@ from cape.cli.common import (
     command,
     model_made,
 )
+from cape.config import schema_default
 from cape.errors import CapeError
 from cape.layout import paths
 
@@ -64,7 +65,8 @@ def _train_arguments(p: argparse.ArgumentParser) -> None:
         type=bounded("training.checkpoint_every"),
         metavar="SECONDS",
         help="write the resumable checkpoint at most this often (default: "
-        "training.checkpoint_every, else 60; 0: after every epoch)",
+        f"training.checkpoint_every, else {schema_default('training.checkpoint_every')}; 0: "
+        "after every epoch)",
     )
     _add_config_args(p)
 
@@ -189,7 +191,7 @@ def cmd_check_training(args: argparse.Namespace) -> None:
     meta = read_meta(folder)
     split = settings.split
     data = TrainingData.from_dataset(
-        _read_dataset(args.data), model.history, float(split["train_fraction"]), int(split["seed"])
+        _read_dataset(args.data), model.history, float(split.train_fraction), int(split.seed)
     )
     outcome = training_outcome(
         name,
@@ -279,7 +281,7 @@ def cmd_freeze(args: argparse.Namespace) -> None:
                         JSON_SUFFIXES))  # fmt: skip
     ((name, model),) = _load_models([args.model]).items()
     data = TrainingData.from_dataset(
-        _read_dataset(args.data), model.history, float(split["train_fraction"]), int(split["seed"])
+        _read_dataset(args.data), model.history, float(split.train_fraction), int(split.seed)
     )
     frozen = frozen_parameters(model, data.train)
     folder = args.model.partition("=")[2]
@@ -319,12 +321,12 @@ def cmd_export_network(args: argparse.Namespace) -> None:
     _claim(args, Output(target, "network", _made_from_weights(args.model), (".npz",)))
     out = export_network(folder, target, expected_name=name)
     print(f"wrote {out}: the {name} network for the closed loop")
-    if compile_settings and compile_settings.get("enabled", False):
+    if compile_settings is not None and compile_settings.enabled:
         import numpy as np
 
         from cape.models.network import load_network
 
-        network = load_network(out, compile_settings)
+        network = load_network(out, compile_settings.as_settings())
         network.phi(np.zeros((network.history, 7)))  # builds and caches the compiled Φ
         if network.library is not None:
             print(f"compiled its Φ (GRU, trunk and guard) into {network.library}")

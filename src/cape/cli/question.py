@@ -172,7 +172,7 @@ def _snakemake(
                     print(f"  {what}: {done[0]}", flush=True)
             status = proc.wait()
         except BaseException:  # stopped: Snakemake and its jobs with it, then the next run resumes
-            from cape.workflow.processes import stop
+            from cape.processes import stop
 
             stop(proc, grace=STOP_GRACE)
             raise

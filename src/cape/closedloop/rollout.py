@@ -20,6 +20,7 @@ from cape.closedloop.envelope import Envelope, divergence_record
 from cape.closedloop.plants import Plant
 from cape.controllers.base import Controller
 from cape.numerics import interrupt
+from cape.specs.run import Penalty, RolloutSettings
 from cape.tracks.geometry import cross_track_error, wrap_angle
 from cape.tracks.reference import ProgressTracker, ReferenceLine
 from cape.tracks.track import Track
@@ -59,21 +60,20 @@ def run_lap(
     line: ReferenceLine,
     track: Track,
     disturbances: DisturbancePipeline,
+    settings: RolloutSettings,
     *,
-    horizon: int,
-    time_limit: float,
-    vx0: float,
-    penalty: dict[str, float],
-    failure_window: float = 0.5,
     envelope: Envelope | None = None,
 ) -> LapResult:
-    """Drive one lap; never raises for a failed run (the failure, its reason and where it
-    happened are recorded: see ``failure_location``). ``envelope``: a learned plant's, whose
-    state beyond it (or non-finite) ends the run as ``plant_diverged`` before the
-    disturbances act on it."""
+    """Drive one lap under ``settings`` (``rollout``: its horizon, time limit, start speed,
+    penalty and failure window); never raises for a failed run (the failure, its reason and
+    where it happened are recorded: see ``failure_location``). ``envelope``: a learned
+    plant's, whose state beyond it (or non-finite) ends the run as ``plant_diverged`` before
+    the disturbances act on it."""
     ts = line.ts
+    horizon, time_limit = int(settings.horizon), float(settings.time_limit)
+    penalty = settings.penalty
     max_steps = round(time_limit / ts)
-    x = initial_state(line, vx0)
+    x = initial_state(line, float(settings.vx0))
     plant.reset(x)
     disturbances.reset(delta0=0.0)
     car = ProgressTracker(line)  # the true progress: laps and tracking errors
@@ -157,7 +157,7 @@ def run_lap(
     metrics["rescues"] = rescued  # steps the SQP left to its rescue
     metrics["solver_iterations_median"] = float(np.median(iterations)) if iterations else None
     metrics["solver_iterations_max"] = max(iterations) if iterations else None
-    window = max(round(failure_window / ts), 0)
+    window = max(round(float(settings.failure_window) / ts), 0)
     metrics.update(
         failure_location(failure, car.total, line.length, last_pose, fallback_steps, window)
     )
@@ -210,7 +210,7 @@ def summarise(
     lap_time: float | None,
     steps: int,
     time_limit: float,
-    penalty: dict[str, float],
+    penalty: Penalty,
 ) -> dict[str, Any]:
     """The per-run metrics of SPEC §5.3 (deterministic: no wall-clock numbers)."""
     success = failure is None and lap_time is not None
@@ -224,11 +224,11 @@ def summarise(
         "success": bool(success),
         "failure": failure,
         "lap_time": lap_time,
-        "lap_time_penalised": lap_time if success else float(penalty["lap_time"]),
+        "lap_time_penalised": lap_time if success else float(penalty.lap_time),
         "mean_abs_ex": mean_abs("e_x"),
         "mean_abs_ey": mean_abs("e_y"),
-        "mean_abs_ex_penalised": mean_abs("e_x") if success else float(penalty["tracking_error"]),
-        "mean_abs_ey_penalised": mean_abs("e_y") if success else float(penalty["tracking_error"]),
+        "mean_abs_ex_penalised": mean_abs("e_x") if success else float(penalty.tracking_error),
+        "mean_abs_ey_penalised": mean_abs("e_y") if success else float(penalty.tracking_error),
         "mean_abs_cte": mean_abs("e_cte"),
         "mean_speed": float(speed.mean()) if speed.size else None,
         "mean_abs_dT": float(du[:, 0].mean()) if du.size else None,

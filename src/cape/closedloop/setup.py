@@ -75,6 +75,11 @@ class ModelFolders:
         return models if isinstance(models, ModelFolders) else cls(Path(models))
 
 
+def compile_settings(spec: RunSpec) -> dict[str, Any] | None:
+    """``rollout.compile`` as the compiling code reads it (cape/numerics), None without it."""
+    return None if spec.rollout.compile is None else spec.rollout.compile.as_settings()
+
+
 def frozen_phi(models: Path | ModelFolders, model_name: str) -> dict[str, float]:
     """The frozen Φ of a trained model (SPEC §4.5), or an error saying how to build it."""
     path = ModelFolders.of(models)(model_name) / paths.FROZEN_PHI
@@ -123,7 +128,7 @@ def build_internal(
     folder = ModelFolders.of(models_dir)(str(model_name))
     if kind == "learned":
         trained = (loaded or {}).get(str(model_name)) or load_trained(
-            folder, model_name, spec.compile
+            folder, model_name, compile_settings(spec)
         )
         return InternalModel(trained.physics, "learned", predictor=trained.network)
     physics = load_physics(folder, model_name)
@@ -145,18 +150,13 @@ class AssembledRun:
     envelope_source: dict[str, str] | None = None  # the training data set: path and digest
 
     def __call__(self) -> LapResult:
-        s = self.spec
         return run_lap(
             self.plant,
             self.controller,
             self.line,
             self.track,
             self.disturbances,
-            horizon=s.horizon,
-            time_limit=s.time_limit,
-            vx0=s.vx0,
-            penalty=s.penalty,
-            failure_window=s.failure_window,
+            self.spec.rollout,
             envelope=self.envelope,
         )
 
@@ -183,27 +183,29 @@ def build_run(
     kind, model_name = plant_parsed.kind, plant_parsed.model
     if internal is not None:  # a bad name is an error for any controller
         PlantName.parse(internal, models, "--internal")
-    native.enable(spec.compile)  # projections in C: the same numbers
+    compiled = compile_settings(spec)
+    native.enable(compiled)  # projections in C: the same numbers
     line, track = load_reference(spec.reference, raceline)
-    check_time_limit(spec.time_limit, line.ideal_lap_time())
-    disturbances = DisturbancePipeline.from_config(spec.disturbances, eta, seed)
+    check_time_limit(float(spec.rollout.time_limit), line.ideal_lap_time())
+    disturbances = DisturbancePipeline.from_config(spec.disturbances.sources, eta, seed)
     transform = disturbances.plant_params
     loaded: dict[str, TrainedModel] = {}
     folders = ModelFolders.of(models_dir)
     if plant_parsed.is_truth:
-        plant: Plant = TruthPlant(GROUND_TRUTH.as_dict(), ts, transform, spec.compile)
+        plant: Plant = TruthPlant(GROUND_TRUTH.as_dict(), ts, transform, compiled)
     elif kind == "learned":
-        trained = load_trained(folders(str(model_name)), model_name, spec.compile)
+        trained = load_trained(folders(str(model_name)), model_name, compiled)
         loaded[str(model_name)] = trained
         plant = LearnedPlant(trained, transform)
     else:
         physics = load_physics(folders(str(model_name)), expected_name=model_name)
         plant = FixedParameterPlant(physics, frozen_phi(folders, str(model_name)), transform)
     envelope, envelope_source = None, None
-    if not plant_parsed.is_truth and spec.plant_envelope is not None:
+    bound = spec.rollout.plant_envelope
+    if not plant_parsed.is_truth and bound is not None:
         path = envelope_data or paths.dataset(spec.train_track)
         trained_on = read_meta(folders(str(model_name))).get("data_sha256")
-        envelope, envelope_source = Envelope.of_file(path, spec.plant_envelope, trained_on)
+        envelope, envelope_source = Envelope.of_file(path, float(bound), trained_on)
     entry = spec.controller_entry
     cls = controller_class(controller_name, entry)
     if validate:

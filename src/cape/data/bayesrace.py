@@ -11,13 +11,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from cape.data.purepursuit import PurePursuit
 from cape.errors import CapeError
 from cape.layout import paths
+from cape.specs.tracks import DataSettings
 from cape.tracks.track import Raceline
 from cape.vehicle.dynamics import state_derivative
 from cape.vehicle.integrators import rkf_step
@@ -64,15 +64,15 @@ class ProtocolSettings:
     psi0: float
 
     @classmethod
-    def from_config(cls, data_cfg: dict[str, Any], track: str) -> ProtocolSettings:
-        """Settings for ``track`` from the validated ``data`` section of the config."""
+    def of(cls, data: DataSettings, track: str) -> ProtocolSettings:
+        """Settings for ``track`` (one of ``data.tracks``) from the ``data`` section."""
         return cls(
-            steps=int(data_cfg["steps"]),
-            ts=float(data_cfg["ts"]),
-            vx0=float(data_cfg["vx0"]),
-            lookahead=float(data_cfg["lookahead"]),
-            speed_gain=float(data_cfg["speed_gain"]),
-            psi0=float(data_cfg["tracks"][track]["psi0"]),
+            steps=int(data.steps),
+            ts=float(data.ts),
+            vx0=float(data.vx0),
+            lookahead=float(data.lookahead),
+            speed_gain=float(data.speed_gain),
+            psi0=float(data.tracks[track].psi0),
         )
 
 

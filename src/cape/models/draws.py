@@ -23,6 +23,7 @@ from typing import Any
 
 from cape.errors import CapeError
 from cape.layout import paths
+from cape.specs.training import HealthSettings
 
 HEALTH_FORMAT = 1
 
@@ -340,7 +341,7 @@ def train_loss(folder: str | Path) -> list[float]:
     return [float(x) for x in losses["train_loss"].tolist()]
 
 
-def checked_outcome(model: str, training: Training, settings: Mapping[str, Any]) -> Outcome:
+def checked_outcome(model: str, training: Training, settings: HealthSettings) -> Outcome:
     """The health record of ``training``, checked rather than trusted: about this training
     (its seed and weights) and with the verdict its own numbers give under the bar
     ``settings`` (``training.health``): its ETHZ validation RMSE and the folder's loss.csv
@@ -381,7 +382,7 @@ def make_draw(
     replicate: int,
     max_trainings: int,
     trainings: Sequence[Path],
-    settings: Mapping[str, Any],
+    settings: HealthSettings,
 ) -> Draw:
     """Draw ``replicate`` of ``model`` from its ``trainings`` folders in seed order (SPEC §4):
     the (r + 1)-th that works, or the cap's stand-in, under the health checks' ``settings``

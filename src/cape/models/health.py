@@ -14,7 +14,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from cape.errors import CapeError
 from cape.models.draws import Outcome
+from cape.specs.training import HealthSettings
 
 STATES = ("vx", "vy", "omega")
 
@@ -23,32 +25,43 @@ def training_checks(
     model: str,
     val_rmse: Mapping[str, float],
     train_loss: Sequence[float],
-    settings: Mapping[str, Any],
+    settings: HealthSettings,
 ) -> list[str]:
     """The reasons one training failed (none: it trained), from its validation RMSE per
-    component and its training loss per epoch."""
+    component and its training loss per epoch, under the checks ``settings``."""
     nonfinite = [f"validation RMSE {s}" for s in STATES if not np.isfinite(float(val_rmse[s]))]
     if not np.all(np.isfinite(np.asarray(train_loss, dtype=float))):
         nonfinite.append("the training loss")
     if nonfinite:  # the other checks compare numbers: NaN would pass them
         return ["not finite: " + ", ".join(nonfinite)]
     reasons = []
-    if model in settings.get("models", ()):
-        bar = settings["val_rmse_max"]
+    if settings.applies_to(model):
+        bar = _bar(settings)
         above = [f"{s} {val_rmse[s]:.2e} ≥ {bar[s]:g}" for s in STATES if not val_rmse[s] < bar[s]]
         if above:
             reasons.append("ETHZ validation RMSE above the bar: " + ", ".join(above))
-    stall = settings.get("stall")
-    if stall and len(train_loss) > int(stall["after"]) + 1:
-        start = int(stall["after"])
+    stall = settings.stall
+    if stall is not None and len(train_loss) > int(stall.after) + 1:
+        start = int(stall.after)
         first = float(train_loss[start - 1])
         drop = (first - float(np.min(train_loss[start:]))) / first if first > 0 else 0.0
-        if drop < float(stall["min_drop"]):
+        if drop < float(stall.min_drop):
             reasons.append(
                 f"training loss stalled: {drop:.1%} lower after epoch {start} than at it "
                 f"({first:.3g})"
             )
     return reasons
+
+
+def _bar(settings: HealthSettings) -> dict[str, float]:
+    """SPEC §4.2's bar by state; ``CapeError`` when the checks name models but no bar."""
+    bar = settings.val_rmse_max
+    if bar is None:
+        raise CapeError(
+            "`training.health.val_rmse_max` is missing: the bar of the models "
+            f"`training.health.models` names ({', '.join(settings.models)}); give it"
+        )
+    return {s: float(getattr(bar, s)) for s in STATES}
 
 
 def outliers(best_val_loss: Mapping[int, float], factor: float) -> dict[int, str]:
@@ -90,7 +103,7 @@ def training_outcome(
     seed: int,
     val_rmse: Mapping[str, float],
     train_loss: Sequence[float],
-    settings: Mapping[str, Any],
+    settings: HealthSettings,
     weights_sha256: str,
 ) -> Outcome:
     """One training's health record (cape.models.draws): the checks on the training alone,
@@ -167,7 +180,7 @@ def trainings_tried(metas: Mapping[tuple[int, str], Mapping[str, Any]]) -> pd.Da
 
 def reliability_table(
     trainings: pd.DataFrame,
-    settings: Mapping[str, Any],
+    settings: HealthSettings,
     draws: int,
     max_trainings: int,
     factors: Sequence[float] = (0.5, 1.0, 2.0),
@@ -175,10 +188,9 @@ def reliability_table(
     """Per model: trainings tried, failed, the failure rate with its 95 % Clopper–Pearson
     interval, trained draws against ``draws`` (and whether the cap was reached), and how many
     trainings would pass the ETHZ validation bar scaled by each of ``factors`` (the bar
-    applies to the models ``settings['models']`` names; others: empty)."""
+    applies to the models ``settings.models`` names; others: empty)."""
     from cape.models.draws import reliability
 
-    bar = settings["val_rmse_max"]
     rows = []
     for model, group in trainings.groupby("model", sort=False):
         outcomes = [
@@ -199,10 +211,11 @@ def reliability_table(
         }
         for factor in factors:
             name = f"pass at {factor:g}× bar"
-            if model in settings.get("models", ()):
+            if settings.applies_to(model):
+                bar = _bar(settings)
                 ok = np.ones(len(group), dtype=bool)
                 for s in STATES:
-                    ok &= group[f"val_rmse_{s}"].to_numpy(dtype=float) < factor * float(bar[s])
+                    ok &= group[f"val_rmse_{s}"].to_numpy(dtype=float) < factor * bar[s]
                 row[name] = f"{int(ok.sum())} of {len(group)}"
             else:
                 row[name] = "no bar"

@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Mapping
+from dataclasses import fields
 from typing import Any
 
 from cape.errors import CapeError
+from cape.specs.training import Kernels
 
 ENVIRONMENT = {"mkl_cbwr": "MKL_CBWR", "aten_capability": "ATEN_CPU_CAPABILITY"}
 
@@ -29,12 +30,14 @@ SELECTING = (
 and oneDNN's instruction set): set by hand, they draw another network (docs/models.md)."""
 
 
-def pinned(settings: Mapping[str, Any] | None) -> dict[str, Any]:
+def pinned(settings: Kernels | None) -> dict[str, Any]:
     """The pins that are set (what a training's identity records; empty: the CPU's own)."""
-    return {k: v for k, v in (settings or {}).items() if v is not None}
+    if settings is None:
+        return {}
+    return {f.name: v for f in fields(settings) if (v := getattr(settings, f.name)) is not None}
 
 
-def in_effect(settings: Mapping[str, Any] | None) -> dict[str, Any]:
+def in_effect(settings: Kernels | None) -> dict[str, Any]:
     """What decides a training's kernels beyond the CPU: the config's pins and every selecting
     variable set in the environment (by its name; a config pin sets its own variable, so it
     shows once, as the pin). Part of a training's identity: recorded in meta.json and in the
@@ -45,7 +48,7 @@ def in_effect(settings: Mapping[str, Any] | None) -> dict[str, Any]:
     return {**pins, **env}
 
 
-def pin_before_torch(settings: Mapping[str, Any] | None) -> None:
+def pin_before_torch(settings: Kernels | None) -> None:
     """Set MKL's and ATen's code paths in the environment; refused once PyTorch is loaded
     (they would then silently not apply)."""
     pins = pinned(settings)
@@ -60,7 +63,7 @@ def pin_before_torch(settings: Mapping[str, Any] | None) -> None:
     os.environ.update(wanted)
 
 
-def pin_inductor(settings: Mapping[str, Any] | None) -> None:
+def pin_inductor(settings: Kernels | None) -> None:
     """Inductor's vector width for the compiled training step (``inductor_simdlen``)."""
     simdlen = pinned(settings).get("inductor_simdlen")
     if simdlen is not None:

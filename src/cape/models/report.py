@@ -11,13 +11,14 @@ from cape.data.windows import make_windows, split_indices
 from cape.models.base import LearnedModel
 from cape.models.evaluate import STATE_NAMES, complexity_row, multistep_error, one_step_rmse
 from cape.paper import COMPLEXITY, OPENLOOP_RMSE
+from cape.specs.training import Split
 
 
 def openloop_table(
     models: Mapping[str, LearnedModel],
     train_data: dict[str, np.ndarray],
     test_data: dict[str, np.ndarray],
-    split: Mapping[str, float | int],
+    split: Split,
     horizon: int,
 ) -> pd.DataFrame:
     """One row per model: one-step RMSE on the ETHZ validation split and on ETHZMobil, the mean
@@ -25,7 +26,7 @@ def openloop_table(
     rows = []
     for name, model in models.items():
         windows = make_windows(train_data, model.history)
-        _, val_idx = split_indices(len(windows), float(split["train_fraction"]), int(split["seed"]))
+        _, val_idx = split_indices(len(windows), float(split.train_fraction), int(split.seed))
         val = one_step_rmse(model, windows.subset(val_idx))
         test = one_step_rmse(model, make_windows(test_data, model.history))
         multi = multistep_error(model, test_data, horizon)

@@ -13,7 +13,7 @@ import json
 import os
 import sys
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -26,6 +26,7 @@ from cape.data.windows import StandardScaler, WindowSet, make_windows, split_ind
 from cape.errors import CapeError
 from cape.models.base import LearnedModel
 from cape.models.registry import build_physics
+from cape.specs.training import TrainingCompile
 from cape.storage.io import write_bytes
 
 TRAINING_STEP = 2
@@ -142,7 +143,7 @@ def train_model(
     threads: int = 1,
     progress: bool = True,
     fused: bool = True,
-    compile_settings: Mapping[str, Any] | None = None,
+    compile_settings: TrainingCompile | None = None,
     checkpoint: Checkpointing | None = None,
 ) -> TrainingResult:
     """Train model ``name`` with hyper-parameters ``spec`` (``epochs`` overrides the spec's).
@@ -397,7 +398,7 @@ def training_loss(
     model: LearnedModel,
     windows: torch.Tensor,
     labels: torch.Tensor,
-    settings: Mapping[str, Any] | None,
+    settings: TrainingCompile | None,
 ) -> Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]:
     """``batch_loss`` as it is, or (``enabled``) compiled by ``torch.compile``.
 
@@ -411,12 +412,12 @@ def training_loss(
     Validation stays eager (``nn.GRU``). Inductor's cache lives under ``cache`` (kept between
     runs, so a rerun compiles in seconds)."""
     loss = batch_loss(model, windows, labels)
-    if not settings or not settings.get("enabled", False):
+    if settings is None or not settings.enabled:
         return loss
     import torch._dynamo
 
-    if settings.get("cache"):
-        os.environ["TORCHINDUCTOR_CACHE_DIR"] = str(Path(settings["cache"]).resolve())
+    if settings.cache:
+        os.environ["TORCHINDUCTOR_CACHE_DIR"] = str(Path(settings.cache).resolve())
     try:  # before any tracing: a missing compiler fails in a moment, not after the codegen
         from torch._inductor.cpp_builder import get_cpp_compiler
 
@@ -424,7 +425,7 @@ def training_loss(
     except Exception as error:  # Inductor's own exception types are private
         raise _compile_error(error, missing_compiler=True) from error
     torch._dynamo.config.allow_rnn = True
-    options = {"cpp_wrapper": bool(settings.get("cpp_wrapper", False))}
+    options = {"cpp_wrapper": settings.cpp_wrapper}
     compiled = torch.compile(loss, dynamic=False, options=options)
     checked: set[int] = set()
 

@@ -28,6 +28,7 @@ from cape.models.training import (
     train_model,
     training_fingerprint,
 )
+from cape.specs import as_record
 from cape.specs.training import TrainingSpec
 
 
@@ -66,12 +67,12 @@ def run_training(
     seed = int(seed if seed is not None else spec.seed)
     split = spec.split
     data = TrainingData.from_dataset(
-        dataset, int(entry["history"]), float(split["train_fraction"]), int(split["seed"])
+        dataset, int(entry["history"]), float(split.train_fraction), int(split.seed)
     )
     threads = int(threads or spec.threads)
     if data_sha256 is None:
         data_sha256 = hashlib.sha256(data_path.read_bytes()).hexdigest()
-    compiled = bool((spec.compile or {}).get("enabled", False))
+    compiled = spec.compile.enabled
     kernels = in_effect(spec.kernels)
     fingerprint = _fingerprint(spec, seed, epochs, threads, data_sha256)
     every = float(spec.checkpoint_every if checkpoint_every is None else checkpoint_every)
@@ -100,7 +101,7 @@ def run_training(
         "threads": threads,
         "compiled": compiled,
         "training_step": TRAINING_STEP,
-        "split": split,
+        "split": as_record(split),
         "scaler": data.scaler.to_dict(),
         "data_file": str(data_path),
         "data_sha256": data_sha256,
@@ -158,8 +159,7 @@ def _fingerprint(
 ) -> str:
     """The training's identity, the key of its resumable checkpoint: everything its numbers
     depend on (a checkpoint never resumes under another setting)."""
-    compile_cfg = spec.compile or {}
-    compiled = bool(compile_cfg.get("enabled", False))
+    compiled = spec.compile.enabled
     kernels = in_effect(spec.kernels)
     return training_fingerprint(
         model=spec.model,
@@ -167,12 +167,12 @@ def _fingerprint(
         ts=spec.ts,
         seed=seed,
         epochs=int(epochs if epochs is not None else spec.entry["train"]["epochs"]),
-        split=spec.split,
+        split=as_record(spec.split),
         data_sha256=data_sha256,
         threads=threads,
         fused=spec.fused_adam,
         compiled=compiled,
-        cpp_wrapper=compiled and bool(compile_cfg.get("cpp_wrapper", False)),
+        cpp_wrapper=compiled and spec.compile.cpp_wrapper,
         step=TRAINING_STEP,
         torch=torch.__version__,
         format=FORMAT_VERSION,

@@ -5,7 +5,6 @@ data frames and returns a figure; the notebooks only choose what to draw and sav
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -15,6 +14,7 @@ from cape.closedloop.rollout import FAILURES
 from cape.layout.names import PlantName
 from cape.plots.style import plt
 from cape.plots.tracks import closed, draw_track
+from cape.specs.run import DisturbancesSpec
 from cape.tracks.geometry import ClosedPath
 from cape.tracks.track import Track
 
@@ -343,11 +343,11 @@ def controller_looks(controllers: Sequence[str]) -> tuple[dict[str, object], dic
     return styles, {c: f"C{i % 10}" for i, c in enumerate(controllers)}
 
 
-def block_diagram(disturbances: Mapping[str, Any]) -> plt.Figure:
+def block_diagram(disturbances: DisturbancesSpec) -> plt.Figure:
     """Figure 1: the closed loop of every run (SPEC §5), with where η enters: each disturbance
     source of the config (its class's ``label``) in the box of the loop it acts at."""
     at: dict[str, list[str]] = {stage: [] for stage in STAGES}
-    for name, entry in source_entries(disturbances).items():
+    for name, entry in source_entries(disturbances.sources).items():
         cls = source_class(name, entry)
         for stage in cls.stages:
             at[stage].append(cls.label)

@@ -4,72 +4,74 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from types import MappingProxyType
-from typing import Any
+from typing import Any, TypeVar
 
+from cape.config import setting
 from cape.errors import CapeError
+from cape.specs import Entry, entries, entry_of
+from cape.specs.run import PhiCompile
+from cape.specs.training import HealthSettings, Split
+
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
 class ModelsSpec:
-    """The ``models``, ``data`` and ``training`` sections as the model commands read them
-    (``cape train``, ``health``, ``freeze``, ``export-network``, ``openloop``, ``complexity``,
-    ``plot-models``); a section the job's specification lacks is empty."""
+    """What the model commands read (``cape train``, ``check-training``, ``draw``, ``freeze``,
+    ``export-network``, ``openloop``, ``complexity``, ``plot-models``) of the ``models``,
+    ``data``, ``training`` and ``rollout`` sections; what the job's file lacks is None (its
+    ``ts``, ``split`` and ``health`` say so in one line when a command needs them)."""
 
-    models: Mapping[str, Mapping[str, Any]]
-    data: Mapping[str, Any]
-    training: Mapping[str, Any]
-    rollout_compile: Mapping[str, Any] | None
+    models: Mapping[str, Entry]
+    given_ts: float | None
+    given_split: Split | None
+    given_health: HealthSettings | None
+    multistep_horizon: int
+    """Open-loop steps of the multi-step error (``training.multistep_horizon``)."""
+    inference_repeats: int
+    """Predictions timed per model (``training.inference_repeats``)."""
+    rollout_compile: PhiCompile | None
     """How an exported network's Φ is compiled (``rollout.compile``)."""
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any]) -> ModelsSpec:
+        data, training = config.get("data") or {}, config.get("training") or {}
         return cls(
-            models=MappingProxyType(dict(config.get("models") or {})),
-            data=MappingProxyType(dict(config.get("data") or {})),
-            training=MappingProxyType(dict(config.get("training") or {})),
-            rollout_compile=(config.get("rollout") or {}).get("compile"),
+            models=entries(config.get("models") or {}),
+            given_ts=float(data["ts"]) if "ts" in data else None,
+            given_split=Split.from_config(config) if "split" in data else None,
+            given_health=HealthSettings.from_config(config) if "health" in training else None,
+            multistep_horizon=int(setting(training, "multistep_horizon", "training")),
+            inference_repeats=int(setting(training, "inference_repeats", "training")),
+            rollout_compile=PhiCompile.from_config(config) if "rollout" in config else None,
         )
 
-    def entry(self, name: str) -> Mapping[str, Any]:
+    def entry(self, name: str) -> Entry:
         """Model ``name``'s entry, or ``CapeError`` naming the configured ones."""
-        if name not in self.models:
-            known = ", ".join(sorted(self.models))
-            raise CapeError(f"--model {name}: not in the config's `models` ({known})")
-        return self.models[name]
+        return entry_of(self.models, name, "--model", "models")
 
     @property
     def ts(self) -> float:
-        return float(_need(self.data, "data", "ts"))
+        return _need(self.given_ts, "data.ts")
 
     @property
-    def split(self) -> Mapping[str, Any]:
+    def split(self) -> Split:
         """The train/validation split of a data set's windows (``data.split``)."""
-        return _need(self.data, "data", "split")
+        return _need(self.given_split, "data.split")
 
     @property
-    def health(self) -> Mapping[str, Any]:
-        return _need(self.training, "training", "health")
-
-    @property
-    def multistep_horizon(self) -> int:
-        return int(self.training.get("multistep_horizon", 15))
-
-    @property
-    def inference_repeats(self) -> int:
-        return int(self.training.get("inference_repeats", 2000))
+    def health(self) -> HealthSettings:
+        return _need(self.given_health, "training.health")
 
     def colors_labels(self, names: list[str]) -> tuple[dict[str, str], dict[str, str]]:
-        """Each model's colour and label (defaults where the config has none)."""
-        colors = {n: self.models.get(n, {}).get("color", f"C{i}") for i, n in enumerate(names)}
-        labels = {n: self.models.get(n, {}).get("label", n.upper()) for n in names}
+        """Each model's colour and label (a model without: matplotlib's colour cycle, its name
+        in capitals)."""
+        colors = {n: str(self.models.get(n, {}).get("color", f"C{i}")) for i, n in enumerate(names)}
+        labels = {n: str(self.models.get(n, {}).get("label", n.upper())) for n in names}
         return colors, labels
 
 
-def _need(section: Mapping[str, Any], name: str, key: str) -> Any:
-    try:
-        return section[key]
-    except KeyError:
-        raise CapeError(
-            f"the configuration lacks `{name}.{key}`, which this command needs"
-        ) from None
+def _need(value: T | None, key: str) -> T:
+    if value is None:
+        raise CapeError(f"the configuration lacks `{key}`, which this command needs")
+    return value

@@ -6,9 +6,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from cape.config import section
-from cape.errors import CapeError
-from cape.specs.tracks import TracksSpec
+from cape.config import section, setting
+from cape.specs import Entry, as_record, entries, entry_of
+from cape.specs.tracks import ReferenceSettings, TracksSpec
 
 
 @dataclass(frozen=True)
@@ -18,7 +18,7 @@ class ReferenceSpec:
     track: str
     line: str
     """``cape`` (the workflow's raceline file) or ``bayesrace_long`` (BayesRace's own)."""
-    settings: Mapping[str, Any]
+    settings: ReferenceSettings
     """The ``reference`` section, as ``ReferenceLine`` reads it."""
     tracks_dir: str
     prefix: str
@@ -27,13 +27,12 @@ class ReferenceSpec:
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any]) -> ReferenceSpec:
-        settings = section(config, "reference")
+        settings = ReferenceSettings.from_config(config)
         tracks = TracksSpec.from_config(config)
-        name = settings["track"]
-        entry = tracks.catalogue[name]
+        entry = tracks.catalogue[settings.track]
         return cls(
-            track=name,
-            line=settings["line"],
+            track=settings.track,
+            line=settings.line,
             settings=settings,
             tracks_dir=tracks.dir,
             prefix=entry.prefix,
@@ -43,51 +42,116 @@ class ReferenceSpec:
 
 
 @dataclass(frozen=True)
+class DisturbancesSpec:
+    """The ``disturbances`` section (SPEC §6): the η grid and the sources, each a registered
+    class's own entry (cape/closedloop/disturbances.py reads them)."""
+
+    eta: tuple[str, ...]
+    sources: Mapping[str, Entry]
+    """Every entry but ``eta``, by name."""
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any]) -> DisturbancesSpec:
+        disturbances = section(config, "disturbances")
+        sources = {k: v for k, v in disturbances.items() if k != "eta"}
+        return cls(tuple(disturbances.get("eta") or ()), entries(sources))
+
+
+@dataclass(frozen=True)
+class Penalty:
+    """``rollout.penalty``: what a failed run counts as in the penalised metrics."""
+
+    lap_time: float
+    tracking_error: float
+
+
+@dataclass(frozen=True)
+class PhiCompile:
+    """``rollout.compile``: the learned models' Φ and the projections as compiled C (``enabled``),
+    with the compiler, its flags and the cache folder; a key the section leaves out is None."""
+
+    enabled: bool | None
+    cache: str | None
+    compiler: str | None
+    flags: tuple[str, ...] | None
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any]) -> PhiCompile | None:
+        """None when the rollout section has no ``compile``."""
+        given = section(config, "rollout").get("compile")
+        if given is None:
+            return None
+        flags = given.get("flags")
+        return cls(
+            given.get("enabled"),
+            given.get("cache"),
+            given.get("compiler"),
+            None if flags is None else tuple(flags),
+        )
+
+    def as_settings(self) -> dict[str, Any]:
+        """The keys it was given, as the compiling code reads them (cape/numerics sits below the
+        specs, and compiles the controllers' NLPs from their own entries the same way)."""
+        return {k: v for k, v in as_record(self).items() if v is not None}
+
+
+@dataclass(frozen=True)
+class RolloutSettings:
+    """The ``rollout`` section: one lap's settings and how a run is judged and bounded."""
+
+    vx0: float
+    time_limit: float
+    horizon: int
+    penalty: Penalty
+    failure_window: float
+    plant_envelope: float | None
+    """A learned plant's bound, a multiple of the training data's largest state; None: none."""
+    compile: PhiCompile | None
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any]) -> RolloutSettings:
+        """The config's values as it spells them (15 stays 15, not 15.0: the workflow passes
+        ``time_limit`` on the command line), checked by the schema."""
+        rollout = section(config, "rollout")
+        penalty = rollout["penalty"]
+        return cls(
+            vx0=rollout["vx0"],
+            time_limit=rollout["time_limit"],
+            horizon=rollout["horizon"],
+            penalty=Penalty(penalty["lap_time"], penalty["tracking_error"]),
+            failure_window=setting(rollout, "failure_window", "rollout"),
+            plant_envelope=setting(rollout, "plant_envelope", "rollout"),
+            compile=PhiCompile.from_config(config),
+        )
+
+
+@dataclass(frozen=True)
 class RunSpec:
     """One run's settings: the controller and its entry, the models' entries its plant and
     internal model read, the reference, the disturbances and the lap's settings."""
 
     controller: str
-    controller_entry: Mapping[str, Any]
-    models: Mapping[str, Mapping[str, Any]]
+    controller_entry: Entry
+    models: Mapping[str, Entry]
     reference: ReferenceSpec
-    disturbances: Mapping[str, Any]
+    disturbances: DisturbancesSpec
     ts: float
     train_track: str
-    horizon: int
-    time_limit: float
-    vx0: float
-    penalty: Mapping[str, Any]
-    failure_window: float
-    plant_envelope: float | None
-    compile: Mapping[str, Any] | None
+    rollout: RolloutSettings
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any], controller: str) -> RunSpec:
         """``controller``'s run from a validated config (or a job's specification of one);
         ``CapeError`` for a controller the config does not have."""
         controllers = section(config, "controllers")
-        if controller not in controllers:
-            known = ", ".join(controllers)
-            raise CapeError(
-                f"--controller {controller}: not in the config's `controllers` ({known})"
-            )
-        rollout = section(config, "rollout")
         data = section(config, "data")
-        envelope = rollout.get("plant_envelope")
         return cls(
             controller=controller,
-            controller_entry=controllers[controller],
-            models=section(config, "models"),
+            controller_entry=entry_of(controllers, controller, "--controller", "controllers"),
+            models=entries(section(config, "models")),
             reference=ReferenceSpec.from_config(config),
-            disturbances=section(config, "disturbances"),
+            disturbances=DisturbancesSpec.from_config(config),
             ts=float(data["ts"]),
-            train_track=data["train_track"],
-            horizon=int(rollout["horizon"]),
-            time_limit=float(rollout["time_limit"]),
-            vx0=float(rollout["vx0"]),
-            penalty=rollout["penalty"],
-            failure_window=float(rollout.get("failure_window", 0.5)),
-            plant_envelope=None if envelope is None else float(envelope),
-            compile=rollout.get("compile"),
+            train_track=str(data["train_track"]),
+            rollout=RolloutSettings.from_config(config),
         )

@@ -7,7 +7,8 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any
 
-from cape.config import schema_default, section
+from cape.config import section, setting
+from cape.specs import Entry, entries
 
 
 def draw_seeds(replicate: int, count: int, stride: int) -> range:
@@ -41,10 +42,11 @@ class StudyGrid:
 
     @classmethod
     def from_config(cls, entry: Mapping[str, Any]) -> StudyGrid:
-        chosen = entry.get("replicates", [0])
+        """From one entry of ``study.studies``."""
+        chosen = setting(entry, "replicates", "study.studies.*")
         eta = entry.get("eta")
         return cls(
-            kind=str(entry.get("kind", "closed_loop")),
+            kind=str(setting(entry, "kind", "study.studies.*")),
             plants=tuple(entry["plants"]),
             controllers=tuple(entry["controllers"]),
             internal=tuple(entry.get("internal") or ()),
@@ -75,14 +77,15 @@ class StudySpec:
     replicates: int
     max_trainings: int | None
     """``training.max_trainings``: None, the default cap (twice the draws)."""
-    controllers: Mapping[str, Mapping[str, Any]]
-    models: Mapping[str, Mapping[str, Any]]
+    controllers: Mapping[str, Entry]
+    models: Mapping[str, Entry]
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any], partial: bool = False) -> StudySpec:
         """From a validated config, or the sections a job reads: ``study``, ``controllers``,
         ``disturbances`` and ``training``, each missing one a ``CapeError``; ``partial`` (a
-        notebook's sections): without ``disturbances`` or ``training``, no η and one draw."""
+        notebook's sections): without ``disturbances`` or ``training``, no η and the schema's
+        training settings."""
         study = section(config, "study")
         controllers = section(config, "controllers")
         if partial:
@@ -91,24 +94,23 @@ class StudySpec:
         else:
             etas = section(config, "disturbances").get("eta", [])
             training = section(config, "training")
-        cap = training.get("max_trainings")
-        stride = study.get("seed_stride")  # None: sections without defaults (--config-json)
+        cap = setting(training, "max_trainings", "training")
         return cls(
             studies=MappingProxyType(
                 {name: StudyGrid.from_config(grid) for name, grid in study["studies"].items()}
             ),
             seeds=int(study["seeds"]),
-            seed_stride=int(schema_default("study.seed_stride") if stride is None else stride),
-            max_runs=int(study.get("max_runs", 20000)),
+            seed_stride=int(setting(study, "seed_stride", "study")),
+            max_runs=int(setting(study, "max_runs", "study")),
             paper=study.get("paper"),
-            ground_truth=study.get("ground_truth"),
-            reference_model=study.get("reference_model"),
-            primary_metric=study.get("primary_metric"),
+            ground_truth=setting(study, "ground_truth", "study"),
+            reference_model=setting(study, "reference_model", "study"),
+            primary_metric=setting(study, "primary_metric", "study"),
             etas=tuple(etas),
-            replicates=int(training.get("replicates", 1)),
+            replicates=int(setting(training, "replicates", "training")),
             max_trainings=None if cap is None else int(cap),
-            controllers=MappingProxyType(dict(controllers)),
-            models=MappingProxyType(dict(config.get("models") or {})),
+            controllers=entries(controllers),
+            models=entries(config.get("models") or {}),
         )
 
     def draw_seeds(self, replicate: int, count: int | None = None) -> range:

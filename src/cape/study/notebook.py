@@ -91,7 +91,7 @@ def run_series(row: Mapping[str, Any], series_paths: str = "") -> pd.DataFrame:
     if declared_files and str(folder / paths.SERIES) not in declared_files:
         raise CapeError(
             f"{folder}: the notebook reads this run's series, but its rule does not declare it "
-            "(cape.workflow.study.StudyWorkflow.example_series); add it there"
+            "(cape.workflow.runs.Runs.example_series); add it there"
         )
     return read_series(folder)
 

@@ -26,7 +26,7 @@ class NotebookOutputs:
     figures: Mapping[str, str] = field(default_factory=dict)
     tables: tuple[str, ...] = ()
     reads: tuple[str, ...] = ()
-    """The config sections it reads (its job specification, ``cape.workflow.specs``)."""
+    """The config sections it reads (its job file, ``cape.workflow.job_files``)."""
 
 
 READS_RUNS = ("tracks", "data", "reference", "controllers", "models", "study")

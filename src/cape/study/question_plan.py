@@ -6,7 +6,6 @@ stage needs. Light on purpose: the workflow imports it whenever Snakemake reads 
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -16,6 +15,8 @@ from cape.config import schema_default
 from cape.errors import CapeError
 from cape.layout.names import NMPCS, TRUTH
 from cape.layout.runs import RunId
+from cape.models.draws import default_max_trainings
+from cape.specs.question import QuestionSpec, check_rule
 from cape.specs.study import StudySpec, draw_seeds
 
 if TYPE_CHECKING:
@@ -49,61 +50,11 @@ class QuestionSettings:
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any], source: str = "config") -> QuestionSettings:
-        """The settings, each cross-field problem one ``CapeError`` naming the key and fix."""
-        q = config.get("question") or {}
-        study = config["study"].get("ground_truth")
-        studies = config["study"]["studies"]
-        if not study or study not in studies:
-            raise CapeError(
-                f"{source}: `study.ground_truth` names no study of `study.studies` "
-                f"({study!r}); the question runs on the ground-truth study: set it to one"
-            )
-        models = tuple(q.get("models") or ())
-        unknown = [m for m in models if m not in config["models"]]
-        if len(models) < 2 or unknown:
-            raise CapeError(
-                f"{source}: field `question.models` must name two or more models of `models`"
-                + (f"; {', '.join(unknown)} is not one" if unknown else "")
-                + (
-                    " (DDM's tuned recipe is config/question.yaml's: merge it)"
-                    if "ddm_tuned" in unknown
-                    else ""
-                )
-            )
-        stages = tuple(int(s) for s in q.get("stages") or ())
-        missing = [c for c in NMPCS if c not in config["controllers"]]
-        if missing:
-            raise CapeError(
-                f"{source}: the question reads the NMPCs' runs, and `controllers` lacks "
-                f"{', '.join(missing)}; add them back"
-            )
-        grid = studies[study]
-        etas = tuple(grid.get("eta") or config["disturbances"]["eta"])
-        seeds = int(config["study"]["seeds"])
-        stride = config["study"].get("seed_stride")  # None: sections without their defaults
-        seeds_of = q.get("seeds") or {}
-        least = int(seeds_of.get("least", schema_default("question.seeds.least")))
-        most = seeds_of.get("most")
-        stride = int(schema_default("study.seed_stride") if stride is None else stride)
-        _check_rule(stages, least, None if most is None else int(most), stride, source)
-        futility = q.get("futility", schema_default("question.futility"))
-        return cls(
-            models,
-            stages,
-            float(q.get("alpha", 0.05)),
-            float(q.get("spending", 2.0)),
-            {
-                str(k): float(v)
-                for k, v in (config.get("scorecard", {}).get("margins") or {}).items()
-            },
-            study,
-            etas,
-            seeds,
-            least,
-            stride,
-            float(futility),
-            None if most is None else int(most),
-        )
+        """The settings (``cape.specs.question.QuestionSpec``), each cross-field problem one
+        ``CapeError`` naming the key and fix."""
+        q = QuestionSpec.from_config(config, source)
+        return cls(q.models, q.stages, q.alpha, q.spending, dict(q.margins), q.study, q.etas,
+                   q.seeds, q.least_seeds, q.seed_stride, q.futility, q.most_seeds)  # fmt: skip
 
     @classmethod
     def from_identity(cls, design: Mapping[str, Any]) -> QuestionSettings:
@@ -153,7 +104,7 @@ class QuestionSettings:
         }
         try:
             validate_config(fragment, "the design", partial=True)
-            _check_rule(self.stages, self.least_seeds, self.most_seeds, self.seed_stride, "design")
+            check_rule(self.stages, self.least_seeds, self.most_seeds, self.seed_stride, "design")
         except CapeError as exc:
             raise ValueError(str(exc).split(". Fix the value")[0]) from None
 
@@ -207,26 +158,6 @@ class QuestionSettings:
                 "stride": self.seed_stride,
             },
         }
-
-
-def _check_rule(
-    stages: tuple[int, ...], least: int, most: int | None, stride: int, source: str
-) -> None:
-    """The cross-field rules of the looks and the seed rule; ``CapeError`` naming the field."""
-    if not stages or any(b <= a for a, b in itertools.pairwise(stages)):
-        raise CapeError(f"{source}: field `question.stages` must increase: {list(stages)}")
-    for key, value in (("least", least), ("most", most)):
-        if value is not None and value > stride:
-            raise CapeError(
-                f"{source}: field `question.seeds.{key}` is {value}, more than "
-                f"`study.seed_stride` ({stride}): a draw's seeds would reach the next "
-                "draw's; lower it or raise the stride"
-            )
-    if most is not None and most < least:
-        raise CapeError(
-            f"{source}: field `question.seeds.most` ({most}) is below `question.seeds.least` "
-            f"({least}); set most to at least {least}"
-        )
 
 
 @dataclass(frozen=True)
@@ -333,7 +264,9 @@ def run_overrides(study: StudySpec, settings: QuestionSettings, plan: Plan) -> d
     # redoes a draw another made (cape.models.draws.deciding_cap)
     cap = study.max_trainings
     last = max(most, settings.stages[-1])
-    cap = 2 * last if cap is None else max(cap, math.ceil(cap * last / replicates))
+    cap = (
+        default_max_trainings(last) if cap is None else max(cap, math.ceil(cap * last / replicates))
+    )
     training: dict[str, Any] = {"replicates": most, "max_trainings": cap}
     return {
         "training": training,

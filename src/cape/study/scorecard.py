@@ -12,12 +12,12 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from cape.layout.names import PlantName, replicate_name
+from cape.specs.notebook import ScorecardSettings
 from cape.study.claims import (
     BICYCLE,
     CLOSED_LOOP,
@@ -82,22 +82,8 @@ Effects = dict[int, list[float]]
 """Replicate → the effect's values (one per seed, or one for the draw)."""
 
 
-@dataclass(frozen=True)
-class Settings:
-    """``draws needed``: the power it plans for and the most draws it names (config
-    ``scorecard``)."""
-
-    power: float = 0.8
-    most_draws: int = 100
-    margins: Mapping[str, float] = field(default_factory=dict)
-    """Metric → the margin of no practical difference (config ``scorecard.margins``): a row of
-    that metric whose effect the two one-sided tests put inside ±margin is ``equivalent``."""
-
-    @classmethod
-    def from_config(cls, section: Mapping[str, Any] | None) -> Settings:
-        section = section or {}
-        margins = {str(k): float(v) for k, v in (section.get("margins") or {}).items()}
-        return cls(float(section.get("power", 0.8)), int(section.get("most_draws", 100)), margins)
+Settings = ScorecardSettings
+"""``draws needed``'s power and most draws and the margins (config ``scorecard``)."""
 
 
 @dataclass(frozen=True)
@@ -444,7 +430,7 @@ def evaluate_claims(
     replicates = sorted(
         {int(r) for r in runs["replicate"].unique()} | set(complexity) | set(openloop)
     )
-    ev = _Evaluation(replicates, context, settings or Settings(), [], [])
+    ev = _Evaluation(replicates, context, settings or ScorecardSettings(), [], [])
     for claim in claims.closed_loop:
         if runs.empty:
             why = evidence.absent or "the paper's study has no runs"

@@ -21,6 +21,9 @@ import pandas as pd
 
 from cape.errors import CapeError
 from cape.layout.paths import EVIDENCE_FILES as EVIDENCE
+from cape.specs import as_record
+from cape.specs.notebook import ScorecardSettings
+from cape.specs.training import HealthSettings
 from cape.storage.io import read_csv, read_json, write_bytes, write_text
 
 LABELS = ("study", "model", "plant", "internal", "controller", "eta_label")
@@ -101,8 +104,8 @@ class ScorecardData:
             bicycle=bicycle,
             reference=job.study.reference_model,
             primary=job.study.primary_metric,
-            scorecard=dict(job.scorecard or {}),
-            health=dict(job.health),
+            scorecard=as_record(job.scorecard) if job.scorecard is not None else {},
+            health=as_record(job.health) if job.health is not None else {},
             ideal_lap_time=float(line.ideal_lap_time()),
             replicates=tuple(draws),
             absent=nothing_here(runs.query("study == @paper"), job.study, paper),
@@ -216,7 +219,7 @@ def compute(data: ScorecardData) -> Scorecard:
     from cape.study.claims import Context
     from cape.study.leaderboard import leaderboard
     from cape.study.notebook import nothing_table
-    from cape.study.scorecard import Evidence, Settings, evaluate_claims
+    from cape.study.scorecard import Evidence, evaluate_claims
     from cape.study.tables import best_controller
 
     about, runs = data.about, data.runs
@@ -224,12 +227,12 @@ def compute(data: ScorecardData) -> Scorecard:
     failed = failed_draws(health)
     trainings = trainings_tried(data.metas)
     reliability = reliability_table(
-        trainings, about.health, len(about.replicates), draw_cap(data.metas)
+        trainings, HealthSettings.of(about.health), len(about.replicates), draw_cap(data.metas)
     )
     bicycle = runs[runs["study"].isin(list(about.bicycle)) & (runs["replicate"] == 0)]
     best = best_controller(summarise(bicycle), about.labels) if len(bicycle) else pd.DataFrame()
     context = Context(about.ideal_lap_time, failed, data.openloop)
-    settings = Settings.from_config(about.scorecard)
+    settings = ScorecardSettings.of(about.scorecard)
     paper_runs = runs[runs["study"] == about.paper]
     truth = about.ground_truth
     truth_runs = runs[runs["study"] == truth] if truth is not None else None

@@ -10,6 +10,7 @@ import pandas as pd
 
 from cape.closedloop.disturbances import is_active, source_class, source_entries
 from cape.closedloop.rollout import FAILURES as FAILURE_REASONS
+from cape.specs.run import DisturbancesSpec
 
 PRESENTATION = ("module", "type", "label", "color")
 
@@ -38,13 +39,13 @@ def controller_parameters(controllers: Mapping[str, Any]) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def uncertainty_activation(disturbances: Mapping[str, Any]) -> pd.DataFrame:
+def uncertainty_activation(disturbances: DisturbancesSpec) -> pd.DataFrame:
     """Table 3: which source is active at each η of the grid, with its size there: a column
     per source of the config (its class's ``column``, its ``cell``), in the config's order."""
-    entries = source_entries(disturbances)
+    entries = source_entries(disturbances.sources)
     classes = {name: source_class(name, entry) for name, entry in entries.items()}
     rows = []
-    for label in disturbances["eta"]:
+    for label in disturbances.eta:
         eta = float(label)
         row: dict[str, Any] = {"η": label}
         for name, entry in entries.items():

@@ -10,11 +10,11 @@ racelines, and why the curvature is not iterated: docs/modules.md.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from scipy.optimize import lsq_linear
 
+from cape.specs.tracks import ReferenceSettings
 from cape.tracks.geometry import ClosedPath
 from cape.tracks.track import Track
 from cape.vehicle.dynamics import drivetrain_force
@@ -90,20 +90,21 @@ def speed_profile(
 
 
 def build_raceline(
-    track: Track, settings: dict[str, Any], params: VehicleParams, limits: ActuatorLimits
+    track: Track, settings: ReferenceSettings, params: VehicleParams, limits: ActuatorLimits
 ) -> Raceline:
-    """The minimum-curvature raceline of ``track`` with its speed profile."""
-    bound = track.width / 2 - float(settings["margin"])
-    _, points = min_curvature_offsets(track.center, int(settings["nodes"]), bound)
+    """The minimum-curvature raceline of ``track`` with its speed profile (``settings``: the
+    ``reference`` section's nodes, margin, resolution and lateral factor)."""
+    bound = track.width / 2 - float(settings.margin)
+    _, points = min_curvature_offsets(track.center, int(settings.nodes), bound)
     spline_path = ClosedPath(points[0], points[1])
-    samples = max(int(np.ceil(spline_path.length / float(settings["resolution"]))), 3)
+    samples = max(int(np.ceil(spline_path.length / float(settings.resolution))), 3)
     s = np.linspace(0.0, spline_path.length, samples, endpoint=False)
     xy = spline_path.position(s)
     dense = ClosedPath(xy[0], xy[1])
     s_dense = dense.s_points
     uniform = np.linspace(0.0, dense.length, samples, endpoint=False)
     kappa = dense.curvature(uniform)
-    v = speed_profile(uniform, kappa, params, limits, float(settings["lateral_factor"]))
+    v = speed_profile(uniform, kappa, params, limits, float(settings.lateral_factor))
     speed = np.interp(s_dense, uniform, v, period=dense.length)
     return Raceline(x=xy[0], y=xy[1], speed=speed)
 

@@ -12,11 +12,11 @@ import math
 from bisect import bisect_right
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any
 
 import numpy as np
 
 from cape.errors import CapeError
+from cape.specs.tracks import ReferenceSettings
 from cape.tracks.geometry import ClosedPath, Projection
 
 
@@ -60,11 +60,11 @@ class ReferencePoints:
         return self.path.curvature(self.s)
 
 
-def ideal_lap_time(path: ClosedPath, v_path: np.ndarray, settings: dict[str, Any]) -> float:
+def ideal_lap_time(path: ClosedPath, v_path: np.ndarray, settings: ReferenceSettings) -> float:
     """One lap at exactly the reference speed (the scaled, clipped path speed, SPEC §5.2):
     each segment's length over the speed at its start."""
-    speed = np.clip(float(settings["scale"]) * np.asarray(v_path, dtype=float),
-                    float(settings["v_min"]), float(settings["v_max"]))  # fmt: skip
+    speed = np.clip(float(settings.scale) * np.asarray(v_path, dtype=float),
+                    float(settings.v_min), float(settings.v_max))  # fmt: skip
     return float(np.sum(path.segment_lengths / speed[: len(path)]))
 
 
@@ -82,16 +82,22 @@ class ReferenceLine:
     """A closed reference path with its speed rule."""
 
     def __init__(
-        self, x: np.ndarray, y: np.ndarray, v_path: np.ndarray, settings: dict[str, Any], ts: float
+        self,
+        x: np.ndarray,
+        y: np.ndarray,
+        v_path: np.ndarray,
+        settings: ReferenceSettings,
+        ts: float,
     ) -> None:
         self.path = ClosedPath(x, y)
         if len(self.path) != np.asarray(x).size:
             v_path = np.asarray(v_path)[: len(self.path)]
         self.v_path = np.asarray(v_path, dtype=float)
-        self.scale = float(settings["scale"])
-        self.v_min, self.v_max = float(settings["v_min"]), float(settings["v_max"])
+        self.settings = settings
+        self.scale = float(settings.scale)
+        self.v_min, self.v_max = float(settings.v_min), float(settings.v_max)
         self.ts = ts
-        self.window = float(settings["projection_window"])
+        self.window = float(settings.projection_window)
         self.length = self.path.length
         # the speed profile as Python lists closed at s = length, for the scalar lookups of
         # ``points`` (np.interp with a period sorts its table on every call)
@@ -100,8 +106,7 @@ class ReferenceLine:
 
     def ideal_lap_time(self) -> float:
         """One lap at exactly the reference speed (``ideal_lap_time``)."""
-        settings = {"scale": self.scale, "v_min": self.v_min, "v_max": self.v_max}
-        return ideal_lap_time(self.path, self.v_path, settings)
+        return ideal_lap_time(self.path, self.v_path, self.settings)
 
     def v_ref(self, s: np.ndarray | float) -> np.ndarray:
         """Reference speed at arc length ``s``: the scaled, clipped path speed."""

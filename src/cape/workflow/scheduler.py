@@ -74,16 +74,3 @@ def bound_wakeup_timers() -> bool:
     setattr(schedule_one, _PATCHED, True)
     JobScheduler._schedule_reevalutation = schedule_one  # type: ignore[method-assign]
     return True
-
-
-def threads_of(pid: int) -> int | None:
-    """The thread count of process ``pid`` (Linux's /proc), None when it cannot be read: how
-    the bound is measured from outside (benchmarks/scheduler_threads.py, the slow tests)."""
-    try:
-        with open(f"/proc/{pid}/status") as status:
-            for line in status:
-                if line.startswith("Threads:"):
-                    return int(line.split()[1])
-    except OSError:
-        return None
-    return None

@@ -1,10 +1,6 @@
-"""Stopping a ``snakemake`` a command started, with every job it started.
-
-Snakemake starts each job in a session of its own, so signalling Snakemake's session (its process
-group) does not reach them: ``stop`` finds them in /proc (``descendants``) before Snakemake ends
-and they are reparented. Used by ``cape question`` (cape.cli.question) and
-benchmarks/scheduler_threads.py.
-"""
+"""Operating-system processes, through Linux's /proc: stopping a process and every job it
+started (``stop``, for `cape question`'s Snakemake and the benchmarks'), and what the tests and
+benchmarks measure from outside a process (``threads_of``)."""
 
 from __future__ import annotations
 
@@ -15,6 +11,20 @@ import subprocess
 import time
 from collections.abc import Iterable
 from pathlib import Path
+
+
+def threads_of(pid: int) -> int | None:
+    """The thread count of process ``pid`` (Linux's /proc), None when it cannot be read: how
+    the bound on Snakemake's wake-up timers is measured from outside
+    (benchmarks/scheduler_threads.py, the slow tests; cape/workflow/scheduler.py)."""
+    try:
+        with open(f"/proc/{pid}/status") as status:
+            for line in status:
+                if line.startswith("Threads:"):
+                    return int(line.split()[1])
+    except OSError:
+        return None
+    return None
 
 
 def descendants(pid: int) -> list[int]:
