@@ -191,8 +191,8 @@ def cmd_raceline(args: argparse.Namespace) -> None:
     )  # fmt: skip
     title = (
         f"{args.track}: CAPE raceline {path.length:.2f} m; ideal lap {lap_time(line):.2f} s at "
-        f"v_path,\n{ideal:.2f} s at the reference speed (scale {settings['scale']}, "
-        f"clipped to [{settings['v_min']}, {settings['v_max']}] m/s)"
+        f"v_path,\n{ideal:.2f} s at the reference speed (scale {settings.scale}, "
+        f"clipped to [{settings.v_min}, {settings.v_max}] m/s)"
     )
     print(title)
     if args.figure:
