@@ -129,9 +129,28 @@ def provenance(config: Mapping[str, Any], state: QuestionState) -> dict[str, Any
         "design": state.design,
         "draws": draws,
         "stages": stages,
+        "training cpu_s, every part": trainings_cpu(draws),
         "cpu_s": last.get("cpu_s"),
         "wall_s": round(sum(float(line.get("wall_s", 0.0)) for line in state.looks), 1),
     }
+
+
+def trainings_cpu(draws: Mapping[str, list[dict[str, Any]]]) -> dict[str, float | None]:
+    """Per model, the CPU seconds of every training its draws were chosen among, each over all
+    its parts (``question_report.training_cpu``): a stage line recorded before CAPE counted a
+    resumed training's every part holds only its last; None where a record is missing."""
+    from cape.layout import paths
+    from cape.study.question_report import training_cpu
+
+    out: dict[str, float | None] = {}
+    for model, records in draws.items():
+        seeds = {int(t["seed"]) for d in records for t in d["trainings tried"]}
+        spent = [
+            training_cpu(model, s, Path(paths.benchmark("train", model, f"seed{s}.tsv")))
+            for s in sorted(seeds)
+        ]
+        out[model] = None if any(c is None for c in spent) else round(sum(spent), 1)  # type: ignore[arg-type]
+    return out
 
 
 def read_folder(folder: Path) -> tuple[QuestionState, pd.DataFrame, pd.DataFrame]:
