@@ -34,7 +34,7 @@ from cape.data.bayesrace import read_dataset
 from cape.data.windows import make_windows
 from cape.errors import CapeError
 from cape.layout import paths
-from cape.models.draws import read_outcome, reliability
+from cape.models.outcome import read_outcome, reliability
 from cape.storage.io import read_benchmark
 
 

@@ -31,7 +31,8 @@ import yaml
 from cape.config import REPO_ROOT, load_config
 from cape.layout import paths
 from cape.layout.record import write_run_files, write_timing
-from cape.models.draws import Outcome, choose_training, default_max_trainings
+from cape.models.draws import choose_training, default_max_trainings
+from cape.models.outcome import Outcome
 from cape.specs.study import StudySpec
 from cape.study.grid import study_grid
 

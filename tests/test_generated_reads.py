@@ -199,7 +199,7 @@ def _stage_yaml(question: dict, budget: settings) -> Callable[..., None]:
     from cape.cli.question import _merge
     from cape.config import validate_config
     from cape.study.question_plan import Plan, QuestionSettings, stage_runs
-    from cape.workflow.study import SOURCE
+    from cape.workflow.start import SOURCE
 
     good = question["stage"]
 

@@ -15,10 +15,8 @@ import numpy as np
 import pandas as pd
 
 from cape.errors import CapeError
-from cape.models.draws import Outcome
+from cape.models.outcome import STATES, Outcome, reliability
 from cape.specs.training import HealthSettings
-
-STATES = ("vx", "vy", "omega")
 
 
 def training_checks(
@@ -189,8 +187,6 @@ def reliability_table(
     interval, trained draws against ``draws`` (and whether the cap was reached), and how many
     trainings would pass the ETHZ validation bar scaled by each of ``factors`` (the bar
     applies to the models ``settings.models`` names; others: empty)."""
-    from cape.models.draws import reliability
-
     rows = []
     for model, group in trainings.groupby("model", sort=False):
         outcomes = [

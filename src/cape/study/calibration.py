@@ -109,7 +109,8 @@ def replaced_failures(
     and the verdict is the scorecard's: ``class_interval`` and ``verdict`` over the trained
     draws (inconclusive with fewer than two). Returns the false-verdict rate over the trained draws
     and, for comparison, over the first ``draws`` trainings with the failed ones kept."""
-    from cape.models.draws import Outcome, choose_training
+    from cape.models.draws import choose_training
+    from cape.models.outcome import Outcome
     from cape.study.verdicts import INCONCLUSIVE, class_interval, interval, verdict
 
     rng = np.random.default_rng(seed)

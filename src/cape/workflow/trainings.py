@@ -17,14 +17,8 @@ from typing import Any
 
 from cape.errors import CapeError
 from cape.layout import paths
-from cape.models.draws import (
-    Choice,
-    Outcome,
-    choose_training,
-    deciding_cap,
-    default_max_trainings,
-    read_outcome,
-)
+from cape.models.draws import Choice, choose_training, deciding_cap, default_max_trainings
+from cape.models.outcome import Outcome, read_outcome
 from cape.specs.study import StudySpec
 from cape.specs.training import TrainingSettings
 
