@@ -156,8 +156,8 @@ def question(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     values.csv) that re-derives."""
     from cape.cli.question import merged_config
     from cape.specs.study import StudySpec
-    from cape.study.question_plan import Plan, QuestionSettings, run_overrides
-    from cape.study.question_state import QuestionState
+    from cape.study.question.plan import Plan, QuestionSettings, run_overrides
+    from cape.study.question.state import QuestionState
 
     work = workdir(tmp_path_factory.mktemp("question"))
     shutil.copy(REPO_ROOT / "config" / "question.yaml", work / "config" / "question.yaml")
@@ -177,7 +177,7 @@ def question(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
 
 
 def _looks_json(question: dict, budget: settings) -> Callable[..., None]:
-    from cape.study.question_state import QuestionState
+    from cape.study.question.state import QuestionState
 
     good = question["looks"]
 
@@ -198,7 +198,7 @@ def _stage_yaml(question: dict, budget: settings) -> Callable[..., None]:
     not the project's to word), then what the workflow does with it."""
     from cape.cli.question import _merge
     from cape.config import validate_config
-    from cape.study.question_plan import Plan, QuestionSettings, stage_runs
+    from cape.study.question.plan import Plan, QuestionSettings, stage_runs
     from cape.workflow.start import SOURCE
 
     good = question["stage"]
@@ -225,7 +225,7 @@ def _stage_yaml(question: dict, budget: settings) -> Callable[..., None]:
 
 def _published(question: dict, budget: settings, name: str) -> Callable[..., None]:
     """`cape question --from`: one of the published folder's files damaged."""
-    from cape.study import question_publish as publish
+    from cape.study.question import publish
 
     folder = question["published"]
     good = (folder / name).read_bytes()

@@ -351,7 +351,7 @@ def _with_provenance(table: Any, items: list[str]) -> Any:
 
 def _load_models(items: list[str]) -> dict[str, Any]:
     """``NAME=DIR`` pairs → trained models, in the order given."""
-    from cape.models.checkpoint import load_model
+    from cape.training.checkpoint import load_model
 
     models = {}
     for item in items:

@@ -73,15 +73,15 @@ def _train_arguments(p: argparse.ArgumentParser) -> None:
 
 @command("train", "train a learned model on the ETHZ windows (SPEC §4)", _train_arguments)
 def cmd_train(args: argparse.Namespace) -> None:
-    from cape.models.kernels import pin_before_torch, pin_inductor
     from cape.specs.training import TrainingSpec
+    from cape.training.kernels import pin_before_torch, pin_inductor
 
     spec = TrainingSpec.from_config(_config(args), args.model)
     pin_before_torch(spec.kernels)  # MKL's and ATen's code paths are read when PyTorch loads
     pin_inductor(spec.kernels)
-    from cape.models.checkpoint import save_model
-    from cape.models.training_run import planned_identity, run_training
     from cape.storage.integrity import file_digest
+    from cape.training.checkpoint import save_model
+    from cape.training.run import planned_identity, run_training
 
     out = Path(args.out)  # --epochs, --threads, ... were checked (common.check_bounds)
     try:
@@ -123,7 +123,7 @@ def cmd_train(args: argparse.Namespace) -> None:
 
 def _training_output(out: Path, identity: str) -> Any:
     """A training's folder as an output (``cape.storage.ownership``): its identity is its
-    model, seed and recipe digest (``cape.models.training_run.training_identity``)."""
+    model, seed and recipe digest (``cape.training.run.training_identity``)."""
     from cape.storage.ownership import Output
 
     files = (paths.WEIGHTS, paths.META, paths.LOSSES)
@@ -175,13 +175,13 @@ def _check_training_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_check_training(args: argparse.Namespace) -> None:
     import json
 
-    from cape.models.draws import train_loss
-    from cape.models.evaluate import one_step_rmse
-    from cape.models.health import training_outcome
     from cape.models.trained import read_meta
-    from cape.models.training import TrainingData
     from cape.storage.io import write_text
     from cape.storage.ownership import Output
+    from cape.training.draws import train_loss
+    from cape.training.evaluate import one_step_rmse
+    from cape.training.health import training_outcome
+    from cape.training.loop import TrainingData
 
     settings = _spec(args)
     _claim(args, Output(Path(args.out), "health record", _made_from_weights(args.model),
@@ -233,8 +233,8 @@ def _draw_arguments(p: argparse.ArgumentParser) -> None:
     _draw_arguments,
 )
 def cmd_draw(args: argparse.Namespace) -> None:
-    from cape.models.draws import make_draw
     from cape.storage.io import write_files
+    from cape.training.draws import make_draw
 
     out = Path(args.out)  # --replicate and --max-trainings were checked (common.check_bounds)
     settings = _spec(args).health
@@ -269,12 +269,12 @@ def _freeze_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_freeze(args: argparse.Namespace) -> None:
     import json
 
-    from cape.models.evaluate import frozen_parameters
     from cape.models.trained import read_meta
-    from cape.models.training import TrainingData
     from cape.storage.integrity import sealed_record
     from cape.storage.io import write_text
     from cape.storage.ownership import Output
+    from cape.training.evaluate import frozen_parameters
+    from cape.training.loop import TrainingData
 
     split = _spec(args).split
     _claim(args, Output(Path(args.out), "frozen parameters", _made_from_weights(args.model),
@@ -307,7 +307,7 @@ def _export_network_arguments(p: argparse.ArgumentParser) -> None:
     _export_network_arguments,
 )
 def cmd_export_network(args: argparse.Namespace) -> None:
-    from cape.models.checkpoint import export_network
+    from cape.training.checkpoint import export_network
 
     name, sep, folder = args.model.partition("=")
     if not sep:
@@ -347,9 +347,9 @@ def cmd_openloop(args: argparse.Namespace) -> None:
     import numpy as np
     import torch
 
-    from cape.models.evaluate import rear_slip
-    from cape.models.report import openloop_table
     from cape.storage.tables import write_table
+    from cape.training.evaluate import rear_slip
+    from cape.training.model_tables import openloop_table
 
     settings = _spec(args)
     made = _made_from(args.model, [args.train_data, args.test_data], settings)
@@ -394,8 +394,8 @@ def cmd_complexity(args: argparse.Namespace) -> None:
     import torch
 
     from cape.data.windows import make_windows
-    from cape.models.report import complexity_table
     from cape.storage.tables import write_table
+    from cape.training.model_tables import complexity_table
 
     settings = _spec(args)
     made = _made_from(args.model, [args.data], settings)
@@ -435,10 +435,10 @@ def cmd_plot_models(args: argparse.Namespace) -> None:
     import numpy as np
 
     from cape.data.windows import make_windows
-    from cape.models.evaluate import predict_phi
     from cape.models.trained import read_training
     from cape.plots.models import plot_phi, plot_training_curves
     from cape.plots.style import save_figure
+    from cape.training.evaluate import predict_phi
     from cape.vehicle.dynamics import drivetrain_force
     from cape.vehicle.params import GROUND_TRUTH
 

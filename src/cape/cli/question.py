@@ -2,7 +2,7 @@
 
 Stage by stage it writes the plan (results/question/stage.yaml), runs Snakemake's ``question``
 target with it (the trainings, draws, solvers and runs the stage's rows read, nothing else),
-looks at every open row (``cape.study.question``), and adds draws only to the models of rows
+looks at every open row (``cape.study.question.looks``), and adds draws only to the models of rows
 still open, until every row is settled or the last stage is looked at. Killed, it resumes: a
 rerun goes through the stages again, Snakemake redoes only what is missing, and the looks are
 the same (they are computed from the runs). The report: results/question/RESULTS.md, looks.csv
@@ -204,9 +204,9 @@ def cmd_question(args: argparse.Namespace) -> None:
     from cape.specs.study import StudySpec
     from cape.storage.io import write_text
     from cape.storage.ownership import Output
-    from cape.study import question_report as report
-    from cape.study.leaderboard import recipe
-    from cape.study.question import (
+    from cape.study.claims.leaderboard import recipe
+    from cape.study.question import report
+    from cape.study.question.looks import (
         RowState,
         evaluate,
         next_draws,
@@ -214,8 +214,8 @@ def cmd_question(args: argparse.Namespace) -> None:
         seed_values,
         values_frame,
     )
-    from cape.study.question_plan import Plan, QuestionSettings, run_overrides
-    from cape.study.question_state import QuestionState
+    from cape.study.question.plan import Plan, QuestionSettings, run_overrides
+    from cape.study.question.state import QuestionState
 
     extra = [a for a in args.snakemake_args if a != "--"]
     files = [*DEFAULT_FILES[: 1 if args.no_question_config else 2], *args.configfile]
@@ -347,7 +347,7 @@ def _yaml(value: Any) -> str:
 
 def _rederive(folder: Path) -> None:
     """``--from``: re-decide a published question's looks, then compare them with its own."""
-    from cape.study import question_publish as publish
+    from cape.study.question import publish
 
     state, values, published = publish.read_folder(folder)
     derived = publish.rederive(state, values)
@@ -372,8 +372,8 @@ def _publish(args: argparse.Namespace, folder: Path) -> None:
 
     from cape.storage.io import write_text
     from cape.storage.ownership import Output
-    from cape.study import question_publish as publish
-    from cape.study.question_state import QuestionState
+    from cape.study.question import publish
+    from cape.study.question.state import QuestionState
 
     source = Path(paths.QUESTION)
     missing = [n for n in publish.COPIED if not (source / n).is_file()]
@@ -405,7 +405,7 @@ def _published(args: argparse.Namespace, identity: dict[str, Any], record: Any) 
     with no look of its own yet, the record takes the published seeds of each draw."""
     if not args.reuse:
         return None
-    from cape.study.question_publish import Published
+    from cape.study.question.publish import Published
 
     published = Published(Path(args.reuse), identity)
     if not record.looks and len(published.state.seeds) > len(record.seeds):

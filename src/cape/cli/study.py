@@ -130,7 +130,7 @@ def _replicates_arguments(p: argparse.ArgumentParser) -> None:
     _replicates_arguments,
 )
 def cmd_replicates(args: argparse.Namespace) -> None:
-    from cape.study import study_publish as publish
+    from cape.study.reports import study_publish as publish
 
     if args.source:
         folder = Path(args.source)

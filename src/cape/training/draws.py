@@ -21,9 +21,9 @@ from typing import Any
 
 from cape.errors import CapeError
 from cape.layout import paths
-from cape.models.health import training_checks
-from cape.models.outcome import Outcome, is_int, read_outcome, shown
 from cape.specs.training import HealthSettings
+from cape.training.health import training_checks
+from cape.training.outcome import Outcome, is_int, read_outcome, shown
 
 
 @dataclass(frozen=True)
@@ -185,7 +185,7 @@ def checked_outcome(model: str, training: Training, settings: HealthSettings) ->
     """The health record of ``training``, checked rather than trusted: about this training
     (its seed and weights) and with the verdict its own numbers give under the bar
     ``settings`` (``training.health``): its ETHZ validation RMSE and the folder's loss.csv
-    through ``cape.models.health.training_checks`` again. ``CapeError`` in one line
+    through ``cape.training.health.training_checks`` again. ``CapeError`` in one line
     naming the record otherwise."""
     path = training.folder / paths.HEALTH
     outcome = read_outcome(path)

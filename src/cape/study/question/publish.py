@@ -22,10 +22,10 @@ from typing import Any
 import pandas as pd
 
 from cape.errors import CapeError
-from cape.study.question import RowState, evaluate, values_from_frame
-from cape.study.question_plan import QuestionSettings
-from cape.study.question_report import draw_meta, looks_frame
-from cape.study.question_state import QuestionState, commit
+from cape.study.question.looks import RowState, evaluate, values_from_frame
+from cape.study.question.plan import QuestionSettings
+from cape.study.question.report import draw_meta, looks_frame
+from cape.study.question.state import QuestionState, commit
 
 COPIED = ("RESULTS.md", "looks.csv", "looks.json", "values.csv", "variance_components.csv")
 """What a published question copies from results/question/ (the same names in the folder)."""
@@ -40,7 +40,7 @@ def draw(folder: Path) -> None:
     from cape.plots.question import question_looks
     from cape.plots.style import PNG_DPI, save_figure
     from cape.storage.tables import number_formats, write_table
-    from cape.study.question_report import final_rows
+    from cape.study.question.report import final_rows
 
     looks = pd.read_csv(folder / "looks.csv")
     (folder / "figures").mkdir(parents=True, exist_ok=True)
@@ -256,7 +256,7 @@ class Published:
     values of it on exactly the seeds the plan gives it."""
 
     def __init__(self, folder: Path, design: Mapping[str, Any]) -> None:
-        from cape.study.question_state import design_change
+        from cape.study.question.state import design_change
 
         self.folder = folder
         self.state, values, _ = read_folder(folder)

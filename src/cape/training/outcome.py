@@ -2,8 +2,8 @@
 not, its ETHZ validation RMSE, the weights it is about), read field by field and never trusted
 (``Outcome.from_dict``, ``read_outcome``), and the failure rate over many (``reliability``).
 
-What both the checks (``cape.models.health``, which decide an outcome) and the draws
-(``cape.models.draws``, which choose among outcomes) read: neither imports the other for it.
+What both the checks (``cape.training.health``, which decide an outcome) and the draws
+(``cape.training.draws``, which choose among outcomes) read: neither imports the other for it.
 """
 
 from __future__ import annotations
