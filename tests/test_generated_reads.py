@@ -154,7 +154,7 @@ def question(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     """A working folder for `cape question`, its design, a looks.json of three looks, the
     first stage's stage.yaml, and a published question folder (looks.csv, looks.json,
     values.csv) that re-derives."""
-    from cape.cli.question import merged_config
+    from cape.config import merged_config
     from cape.specs.study import StudySpec
     from cape.study.question.plan import Plan, QuestionSettings, run_overrides
     from cape.study.question.state import QuestionState
@@ -196,8 +196,7 @@ def _stage_yaml(question: dict, budget: settings) -> Callable[..., None]:
     """The stage's file merged over the question's config as Snakemake merges --configfile
     (a file that is no YAML mapping is Snakemake's own refusal, before the workflow is read:
     not the project's to word), then what the workflow does with it."""
-    from cape.cli.question import _merge
-    from cape.config import validate_config
+    from cape.config import merge_config, validate_config
     from cape.study.question.plan import Plan, QuestionSettings, stage_runs
     from cape.workflow.start import SOURCE
 
@@ -211,7 +210,7 @@ def _stage_yaml(question: dict, budget: settings) -> Callable[..., None]:
         if not isinstance(loaded, dict):
             return
         merged = json.loads(json.dumps(question["config"]))
-        _merge(merged, loaded)
+        merge_config(merged, loaded)
         config = validate_config(merged, SOURCE)
         plan = (config.get("question") or {}).get("plan")
         if plan:

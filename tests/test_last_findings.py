@@ -247,9 +247,11 @@ def _specs(folder: Path) -> dict[str, tuple[Path, str]]:
     """An empty spec, a truncated one (a real rollout spec cut in half), a foreign one (the
     YAML config itself, not a job's JSON), each with the words its refusal holds."""
     from cape.config import load_config
-    from cape.workflow import specs
+    from cape.workflow.job_files import JobFiles
 
-    whole = specs.rollout(load_config(REPO_ROOT / "config" / "config.yaml"), "pid", "truth")
+    with contextlib.chdir(folder):  # the job file is written under results/specs/ there
+        job = JobFiles(load_config(REPO_ROOT / "config" / "config.yaml"))
+        whole = Path(job.write_rollout("pid", "truth", "truth")).read_text()
     config = (REPO_ROOT / "config" / "config.yaml").read_text()
     made = {"empty": ("", "is empty"), "truncated": (whole[: len(whole) // 2], "not valid JSON"),
             "foreign": (config, "not valid JSON")}  # fmt: skip

@@ -13,8 +13,7 @@ import yaml
 from commands import cape, one_message
 from conftest import workdir
 
-from cape.cli.question import merged_config
-from cape.config import REPO_ROOT
+from cape.config import REPO_ROOT, merged_config
 from cape.specs.study import StudySpec
 from cape.study.question.plan import QuestionSettings
 from cape.study.question.state import FORMAT, QuestionState

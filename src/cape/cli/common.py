@@ -263,7 +263,7 @@ FIGURE_SUFFIXES = (".pdf", ".png", ".svg")
 JSON_SUFFIXES = (".json",)
 
 
-def _claim(args: argparse.Namespace, *outputs: Any) -> None:
+def claim(args: argparse.Namespace, *outputs: Any) -> None:
     """Claim this command's outputs (``cape.storage.ownership``) before any work: each refused
     with one line unless it is new or this command's own earlier output; held until the command
     ends."""

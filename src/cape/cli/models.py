@@ -18,7 +18,6 @@ from cape.cli.common import (
     _add_config_args,
     _add_models,
     _add_outputs,
-    _claim,
     _config,
     _files,
     _load_models,
@@ -26,6 +25,7 @@ from cape.cli.common import (
     _read_dataset,
     _with_provenance,
     bounded,
+    claim,
     command,
     model_made,
 )
@@ -91,26 +91,14 @@ def cmd_train(args: argparse.Namespace) -> None:
     training = planned_identity(spec, data_sha256 or "unreadable", args.seed, args.epochs,
                                 args.threads)  # fmt: skip
     as_draw = "" if args.replicate is None else f" as draw {args.replicate}"
-    _claim(args, _training_output(out, training + as_draw))  # before reading, before training
+    claim(args, _training_output(out, training + as_draw))  # before reading, before training
     dataset = _read_dataset(args.data)
-    run = run_training(
-        spec,
-        dataset,
-        Path(args.data),
-        out,
-        seed=args.seed,
-        epochs=args.epochs,
-        threads=args.threads,
-        replicate=args.replicate,
-        checkpoint_every=args.checkpoint_every,
-        data_sha256=data_sha256,
-    )
+    run = run_training(spec, dataset, Path(args.data), out, seed=args.seed, epochs=args.epochs,
+                       threads=args.threads, replicate=args.replicate,
+                       checkpoint_every=args.checkpoint_every, data_sha256=data_sha256)  # fmt: skip
     result = run.result
-    if result.rewritten:
-        print(f"already trained: its outputs rewritten from {run.checkpoint} (epoch "
-              f"{len(result.losses)})")  # fmt: skip
-    elif result.resumed_from:
-        print(f"resumed from {run.checkpoint} after epoch {result.resumed_from}")
+    if result.rewritten or result.resumed_from:
+        print(_resumed(run))
     # the checkpoint of the last epoch stays: a rerun after a crash (Snakemake deletes the
     # outputs of a job it had not recorded as finished) rewrites them from it in seconds
     save_model(run.model, out, run.meta, {paths.LOSSES: run.losses_csv.encode()})
@@ -119,6 +107,14 @@ def cmd_train(args: argparse.Namespace) -> None:
         f"at epoch {result.best_epoch} "
         f"of {len(result.losses)}; {result.wall_seconds:.1f} s; saved to {out}"
     )
+
+
+def _resumed(run: Any) -> str:
+    """How a training that did not start afresh went on: rewritten, or resumed."""
+    if run.result.rewritten:
+        return (f"already trained: its outputs rewritten from {run.checkpoint} (epoch "
+                f"{len(run.result.losses)})")  # fmt: skip
+    return f"resumed from {run.checkpoint} after epoch {run.result.resumed_from}"
 
 
 def _training_output(out: Path, identity: str) -> Any:
@@ -184,7 +180,7 @@ def cmd_check_training(args: argparse.Namespace) -> None:
     from cape.training.loop import TrainingData
 
     settings = _spec(args)
-    _claim(args, Output(Path(args.out), "health record", _made_from_weights(args.model),
+    claim(args, Output(Path(args.out), "health record", _made_from_weights(args.model),
                         JSON_SUFFIXES))  # fmt: skip
     ((name, model),) = _load_models([args.model]).items()
     folder = Path(args.model.partition("=")[2])
@@ -243,7 +239,7 @@ def cmd_draw(args: argparse.Namespace) -> None:
     draw = make_draw(
         args.model, args.replicate, args.max_trainings, [Path(t) for t in args.training], settings
     )
-    _claim(args, _draw_output(out, args.model, args.replicate, draw, args.max_trainings))
+    claim(args, _draw_output(out, args.model, args.replicate, draw, args.max_trainings))
     write_files({out / name: content for name, content in draw.files.items()})
     choice = draw.choice
     said = "trained" if choice.trained else "failed (the cap was reached)"
@@ -277,7 +273,7 @@ def cmd_freeze(args: argparse.Namespace) -> None:
     from cape.training.loop import TrainingData
 
     split = _spec(args).split
-    _claim(args, Output(Path(args.out), "frozen parameters", _made_from_weights(args.model),
+    claim(args, Output(Path(args.out), "frozen parameters", _made_from_weights(args.model),
                         JSON_SUFFIXES))  # fmt: skip
     ((name, model),) = _load_models([args.model]).items()
     data = TrainingData.from_dataset(
@@ -318,7 +314,7 @@ def cmd_export_network(args: argparse.Namespace) -> None:
 
     compile_settings = _spec(args).rollout_compile  # a bad --spec: refused before any work
     target = Path(args.out) if args.out else Path(folder) / paths.NETWORK
-    _claim(args, Output(target, "network", _made_from_weights(args.model), (".npz",)))
+    claim(args, Output(target, "network", _made_from_weights(args.model), (".npz",)))
     out = export_network(folder, target, expected_name=name)
     print(f"wrote {out}: the {name} network for the closed loop")
     if compile_settings is not None and compile_settings.enabled:
@@ -353,7 +349,7 @@ def cmd_openloop(args: argparse.Namespace) -> None:
 
     settings = _spec(args)
     made = _made_from(args.model, [args.train_data, args.test_data], settings)
-    _claim(args, *_files(args.out, "open-loop error table", TABLE_SUFFIXES, identity=made))
+    claim(args, *_files(args.out, "open-loop error table", TABLE_SUFFIXES, identity=made))
     torch.set_num_threads(1)  # the same numbers on any machine, by hand as in the workflow
     horizon = settings.multistep_horizon
     train, test = _read_dataset(args.train_data), _read_dataset(args.test_data)
@@ -399,7 +395,7 @@ def cmd_complexity(args: argparse.Namespace) -> None:
 
     settings = _spec(args)
     made = _made_from(args.model, [args.data], settings)
-    _claim(args, *_files(args.out, "complexity table", TABLE_SUFFIXES, identity=made))
+    claim(args, *_files(args.out, "complexity table", TABLE_SUFFIXES, identity=made))
     torch.set_num_threads(1)
     models = _load_models(args.model)
     data = _read_dataset(args.data)
@@ -447,12 +443,11 @@ def cmd_plot_models(args: argparse.Namespace) -> None:
     figures = _files(args.phi_out, "figure of predicted Φ", FIGURE_SUFFIXES, "--phi-out", made)
     figures += _files(args.curves_out, "figure of training curves", FIGURE_SUFFIXES,
                       "--curves-out", made)  # fmt: skip
-    _claim(args, *figures)
-    ts = settings.ts
+    claim(args, *figures)
     models = _load_models(args.model)
     colors, labels = settings.colors_labels(list(models))
     data = _read_dataset(args.data)
-    phis, time = {}, None
+    phis = {}
     for name, model in models.items():
         windows = make_windows(data, model.history)
         phis[name] = (list(model.param_names), predict_phi(model, windows.features))
@@ -461,12 +456,11 @@ def cmd_plot_models(args: argparse.Namespace) -> None:
     aligned = {n: (pn, phi[-shortest:]) for n, (pn, phi) in phis.items()}
     time = data["time"][-shortest:]
     steps = np.arange(data["inputs"].shape[1])[-shortest - 1 : -1]
-    true_frx = drivetrain_force(
+    frx = drivetrain_force(
         data["dstates"][3, steps], data["inputs"][0, steps], GROUND_TRUTH.as_dict()
     )
-    save_figure(plot_phi(aligned, time, colors, labels, ts, true_frx), *args.phi_out)
-    losses = {}
-    best = {}
+    save_figure(plot_phi(aligned, time, colors, labels, settings.ts, frx), *args.phi_out)
+    losses, best = {}, {}
     for item in args.model:
         name, _, folder = item.partition("=")
         losses[name], meta = read_training(folder)

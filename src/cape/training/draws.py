@@ -22,7 +22,6 @@ from typing import Any
 from cape.errors import CapeError
 from cape.layout import paths
 from cape.specs.training import HealthSettings
-from cape.training.health import training_checks
 from cape.training.outcome import Outcome, is_int, read_outcome, shown
 
 
@@ -187,6 +186,9 @@ def checked_outcome(model: str, training: Training, settings: HealthSettings) ->
     ``settings`` (``training.health``): its ETHZ validation RMSE and the folder's loss.csv
     through ``cape.training.health.training_checks`` again. ``CapeError`` in one line
     naming the record otherwise."""
+    from cape.training.health import training_checks  # here: health's tables import pandas,
+
+    # and the workflow imports this module (through the question's plan) in every process
     path = training.folder / paths.HEALTH
     outcome = read_outcome(path)
     if outcome.seed != training.seed:
