@@ -187,6 +187,30 @@ def test_later_draws_get_the_seeds_that_pay() -> None:
     assert (out.seeds[:, 0] == 15).mean() > 0.2
 
 
+def test_look_and_simulate_decide_the_same_values_alike() -> None:
+    """``look`` (what `cape question` decides on one row) and ``simulate`` (the calibration's
+    thousands of rows at once) share one rule, ``decide``: replayed look by look through
+    ``look``, the very draws' effects ``simulate`` drew give its decision, the draws it used and
+    its repeated interval, trial by trial (fixed seeds, no futility, no variance floor)."""
+    design = Design((3, 6, 10), rows=1)
+    rows = calib.one_row("normal", 0.6, 1.0, 0.5)
+    procedure = calib.Procedure(rule="fixed", first=4, floor=False)
+    out = calib.simulate(rows, design, procedure, trials=60, seed=7)
+    width = max(procedure.first, procedure.most)  # the seeds simulate draws for each draw
+    values = calib.seed_values(rows, np.random.default_rng(7), 60, design.cap, width)
+    effects = values[:, 0, :, : procedure.first].mean(axis=-1)  # trials × draws: over its seeds
+    decided = set()
+    for t in range(60):
+        for n in design.looks:
+            one = look(effects[t, :n], design, rows[0].margin, rows[0].side, n == design.cap)
+            if one.decision != OPEN:
+                break
+        assert (one.decision, n) == (out.decision[t, 0], out.used[t, 0]), t
+        assert one.low == pytest.approx(out.low[t, 0]) and one.high == pytest.approx(out.high[t, 0])
+        decided.add(one.decision)
+    assert len(decided) >= 2, decided  # the values reach more than one decision
+
+
 # --- the question's plan ---------------------------------------------------------------------
 
 
