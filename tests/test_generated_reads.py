@@ -22,10 +22,12 @@ through the real command at the end of this file (``test_found_...``).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 import shutil
 import signal
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -257,14 +259,21 @@ def _spec_readers() -> dict[str, tuple[str, Callable[[Any], Any]]]:
     from cape.specs.tracks import TracksSpec
     from cape.specs.training import TrainingSpec
     from cape.study.grid import study_grid
-    from cape.workflow import specs
+    from cape.workflow.job_files import JobFiles
 
-    config = load_config(REPO_ROOT / "config" / "config.yaml")
+    job = JobFiles(load_config(REPO_ROOT / "config" / "config.yaml"))
+    with tempfile.TemporaryDirectory() as tmp, contextlib.chdir(tmp):  # results/specs/ there
+        written = {
+            "rollout": job.write_rollout("pid", "truth", "truth"),
+            "train": job.write_training("dpm", 0),
+            "aggregate": job.write_grid(),
+        }
+        text = {name: Path(path).read_text() for name, path in written.items()}
     return {
-        "rollout": (specs.rollout(config, "pid", "truth"),
+        "rollout": (text["rollout"],
                     lambda c: (RunSpec.from_config(c, "pid"), TracksSpec.from_config(c))),
-        "train": (specs.training(config, "dpm", 0), lambda c: TrainingSpec.from_config(c, "dpm")),
-        "aggregate": (specs.grid(config), lambda c: study_grid(StudySpec.from_config(c))),
+        "train": (text["train"], lambda c: TrainingSpec.from_config(c, "dpm")),
+        "aggregate": (text["aggregate"], lambda c: study_grid(StudySpec.from_config(c))),
     }  # fmt: skip
 
 
