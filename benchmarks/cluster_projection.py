@@ -48,7 +48,7 @@ from draw_cost import benchmark_cpu, draw_runs, draw_trainings, fixed_part, solv
 
 from cape.errors import CapeError
 from cape.layout import paths
-from cape.models.draws import default_max_trainings
+from cape.training.draws import default_max_trainings
 
 
 @dataclass

@@ -44,9 +44,9 @@ from cape.config import section
 from cape.data.bayesrace import read_dataset
 from cape.errors import CapeError
 from cape.layout import paths
-from cape.models.checkpoint import load_model
-from cape.models.training import TrainingData
 from cape.storage.io import read_json
+from cape.training.checkpoint import load_model
+from cape.training.loop import TrainingData
 from cape.vehicle.params import GROUND_TRUTH
 
 
@@ -128,7 +128,7 @@ def early(
     """Train ``name`` for ``epochs`` epochs, uncompiled, hooking the guard: whether every guard
     output is saturated at the end, the step it first was, the largest pre-activation and the
     training loss per epoch."""
-    import cape.models.training as training
+    import cape.training.loop as training
 
     split = section(config, "data")["split"]
     windows = TrainingData.from_dataset(

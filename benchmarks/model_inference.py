@@ -37,10 +37,10 @@ from cape.data.bayesrace import read_dataset
 from cape.data.windows import make_windows
 from cape.errors import CapeError
 from cape.layout import paths as layout
-from cape.models.checkpoint import load_model
 from cape.models.network import NumpyNetwork
-from cape.models.training import build_model
 from cape.numerics.compiled import compiled_functions
+from cape.training.checkpoint import load_model
+from cape.training.loop import build_model
 
 Predict = Callable[[np.ndarray], np.ndarray]
 

@@ -9,15 +9,15 @@
 2. At the measured components, each design (today's crossed seeds; nested; nested with
    futility; nested with futility and the payoff rule): rows settled, CPU-hours, wrong verdicts.
 
-The same functions the test suite holds to its bounds (cape.study.sequential_calibration).
+The same functions the test suite holds to its bounds (cape.study.stats.sequential_calibration).
 """
 
 from __future__ import annotations
 
 import argparse
 
-from cape.study import sequential_calibration as calib
-from cape.study.sequential import Design
+from cape.study.stats import sequential_calibration as calib
+from cape.study.stats.sequential import Design
 
 
 def laws(design: Design, trials: int) -> None:

@@ -34,8 +34,8 @@ from cape.data.bayesrace import read_dataset
 from cape.data.windows import make_windows
 from cape.errors import CapeError
 from cape.layout import paths
-from cape.models.draws import read_outcome, reliability
 from cape.storage.io import read_benchmark
+from cape.training.outcome import read_outcome, reliability
 
 
 def cpu_seconds(tsv: Path) -> float:
@@ -48,8 +48,8 @@ def cpu_seconds(tsv: Path) -> float:
 
 def test_rmse_omega(folder: Path, test: dict[str, np.ndarray]) -> float:
     """ETHZMobil one-step ω RMSE of the network in ``folder``."""
-    from cape.models.checkpoint import load_model
-    from cape.models.evaluate import one_step_rmse
+    from cape.training.checkpoint import load_model
+    from cape.training.evaluate import one_step_rmse
 
     model = load_model(folder)
     return float(one_step_rmse(model, make_windows(test, model.history))["omega"])

@@ -3,7 +3,7 @@
 - ``old``: issue 15's step: ``torch.compile`` of the model's forward (``nn.GRU`` unrolled cell by
   cell, a second graph for the shorter last batch), the batch gathered and the MSE taken eagerly,
   ``optimiser.step()``.
-- ``new``: the step ``cape train`` runs (``cape.models.training``): the whole batch loss compiled
+- ``new``: the step ``cape train`` runs (``cape.training.loop``): the whole batch loss compiled
   (gather, stage-by-stage GRU, physics, MSE over the real rows of a padded batch), Inductor's
   C++ wrapper as ``training.compile`` says, the fused Adam update without its Python bookkeeping.
 - ``eager`` (``--eager``): the new loss, not compiled.
@@ -44,14 +44,14 @@ from cape.config import section
 from cape.data.bayesrace import read_dataset
 from cape.errors import CapeError
 from cape.layout import paths
-from cape.models.training import (
+from cape.specs.training import TrainingCompile
+from cape.training.loop import (
     AdamStep,
     PaddedBatches,
     TrainingData,
     build_model,
     training_loss,
 )
-from cape.specs.training import TrainingCompile
 
 VARIANTS = ("old", "new", "eager")
 Step = Callable[[torch.Tensor], float]
@@ -83,7 +83,7 @@ def _old_stepper(name, spec, data, ts, settings) -> Step:
 
 
 def _new_stepper(name, spec, data, ts, settings) -> Step:
-    """The step of ``cape.models.training.train_model``."""
+    """The step of ``cape.training.loop.train_model``."""
     model = build_model(name, spec, ts, seed=0)
     model.set_scaler(data.scaler.mean, data.scaler.scale)
     model.train()

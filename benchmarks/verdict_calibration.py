@@ -1,5 +1,5 @@
 """The verdicts' calibration table (docs/study.md): for each method of
-``cape.study.calibration``, the share of simulated studies with no true effect whose 95 %
+``cape.study.stats.calibration``, the share of simulated studies with no true effect whose 95 %
 interval excludes zero (the false-verdict rate, nominal 5 %), at R training draws of five seeds
 and a ratio σ_between/σ_within, and the share that finds a true effect of 3 σ_between at R = 5.
 
@@ -18,7 +18,7 @@ import time
 import numpy as np
 from _common import run  # a sibling module
 
-from cape.study.calibration import exclusion_rate, t_over_draws
+from cape.study.stats.calibration import exclusion_rate, t_over_draws
 
 DRAWS = (3, 5, 10)
 RATIOS = (0.0, 0.2, 1.0, 10.0)

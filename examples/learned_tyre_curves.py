@@ -17,8 +17,8 @@ import argparse
 import numpy as np
 
 from cape.data.windows import make_windows
-from cape.models.evaluate import rear_slip
 from cape.models.trained import load_trained
+from cape.training.evaluate import rear_slip
 from cape.vehicle.dynamics import pacejka
 from cape.vehicle.params import GROUND_TRUTH
 

@@ -12,7 +12,7 @@ controller 6 s and the plant 3 s). Each model's trainings pass (P) or fail (F) i
 - EPM ``FPFPFP`` (half fail; draws 0, 1 and 2 are seeds 1, 3 and 5), 320 s each.
 
 Each draw's ``meta.json`` records the trainings consulted for it as the workflow chooses them
-(``cape.models.draws.choose_training``).
+(``cape.training.draws.choose_training``).
 """
 
 from __future__ import annotations
@@ -31,9 +31,10 @@ import yaml
 from cape.config import REPO_ROOT, load_config
 from cape.layout import paths
 from cape.layout.record import write_run_files, write_timing
-from cape.models.draws import Outcome, choose_training, default_max_trainings
 from cape.specs.study import StudySpec
 from cape.study.grid import study_grid
+from cape.training.draws import choose_training, default_max_trainings
+from cape.training.outcome import Outcome
 
 BENCHMARKS = REPO_ROOT / "benchmarks"
 REPLICATES = 3

@@ -11,8 +11,8 @@ import math
 import numpy as np
 import pytest
 
-from cape.study import sequential_calibration as calib
-from cape.study.sequential import (
+from cape.study.stats import sequential_calibration as calib
+from cape.study.stats.sequential import (
     CONTRADICTED,
     EQUIVALENT,
     FUTILE,

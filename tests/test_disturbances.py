@@ -182,7 +182,7 @@ def test_a_plugged_in_source_acts_after_the_six_and_delays_the_throttle(config) 
 
 
 def test_table_3_and_the_block_diagram_list_a_plugged_in_source(config) -> None:
-    from cape.study.tables import uncertainty_activation
+    from cape.study.reports.tables import uncertainty_activation
 
     table = uncertainty_activation(_as_spec(_with_throttle_delay(config, active_from=1.5)))
     column = table.set_index("η")["throttle delay (steps)"]

@@ -14,7 +14,8 @@ import pytest
 import yaml
 
 from cape.errors import CapeError
-from cape.models.draws import Outcome, choose_training, deciding_cap, read_outcome, reliability
+from cape.training.draws import choose_training, deciding_cap
+from cape.training.outcome import Outcome, read_outcome, reliability
 
 
 def _outcomes(passes: str) -> dict[int, Outcome]:

@@ -80,7 +80,7 @@ def test_the_tuned_ddm_is_ddms_class_under_its_own_name_and_recipe(config) -> No
     import torch
 
     from cape.config import validate_config
-    from cape.models.training import build_model
+    from cape.training.loop import build_model
 
     overlay = yaml.safe_load((REPO_ROOT / "config/examples/ddm_tuned.yaml").read_text())
     merged = validate_config(_merge(copy.deepcopy(config), overlay), "ddm_tuned.yaml")

@@ -22,10 +22,12 @@ through the real command at the end of this file (``test_found_...``).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 import shutil
 import signal
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -154,10 +156,10 @@ def question(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     """A working folder for `cape question`, its design, a looks.json of three looks, the
     first stage's stage.yaml, and a published question folder (looks.csv, looks.json,
     values.csv) that re-derives."""
-    from cape.cli.question import merged_config
+    from cape.config import merged_config
     from cape.specs.study import StudySpec
-    from cape.study.question_plan import Plan, QuestionSettings, run_overrides
-    from cape.study.question_state import QuestionState
+    from cape.study.question.plan import Plan, QuestionSettings, run_overrides
+    from cape.study.question.state import QuestionState
 
     work = workdir(tmp_path_factory.mktemp("question"))
     shutil.copy(REPO_ROOT / "config" / "question.yaml", work / "config" / "question.yaml")
@@ -177,7 +179,7 @@ def question(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
 
 
 def _looks_json(question: dict, budget: settings) -> Callable[..., None]:
-    from cape.study.question_state import QuestionState
+    from cape.study.question.state import QuestionState
 
     good = question["looks"]
 
@@ -196,10 +198,9 @@ def _stage_yaml(question: dict, budget: settings) -> Callable[..., None]:
     """The stage's file merged over the question's config as Snakemake merges --configfile
     (a file that is no YAML mapping is Snakemake's own refusal, before the workflow is read:
     not the project's to word), then what the workflow does with it."""
-    from cape.cli.question import _merge
-    from cape.config import validate_config
-    from cape.study.question_plan import Plan, QuestionSettings, stage_runs
-    from cape.workflow.study import SOURCE
+    from cape.config import merge_config, validate_config
+    from cape.study.question.plan import Plan, QuestionSettings, stage_runs
+    from cape.workflow.start import SOURCE
 
     good = question["stage"]
 
@@ -211,7 +212,7 @@ def _stage_yaml(question: dict, budget: settings) -> Callable[..., None]:
         if not isinstance(loaded, dict):
             return
         merged = json.loads(json.dumps(question["config"]))
-        _merge(merged, loaded)
+        merge_config(merged, loaded)
         config = validate_config(merged, SOURCE)
         plan = (config.get("question") or {}).get("plan")
         if plan:
@@ -225,7 +226,7 @@ def _stage_yaml(question: dict, budget: settings) -> Callable[..., None]:
 
 def _published(question: dict, budget: settings, name: str) -> Callable[..., None]:
     """`cape question --from`: one of the published folder's files damaged."""
-    from cape.study import question_publish as publish
+    from cape.study.question import publish
 
     folder = question["published"]
     good = (folder / name).read_bytes()
@@ -258,14 +259,21 @@ def _spec_readers() -> dict[str, tuple[str, Callable[[Any], Any]]]:
     from cape.specs.tracks import TracksSpec
     from cape.specs.training import TrainingSpec
     from cape.study.grid import study_grid
-    from cape.workflow import specs
+    from cape.workflow.job_files import JobFiles
 
-    config = load_config(REPO_ROOT / "config" / "config.yaml")
+    job = JobFiles(load_config(REPO_ROOT / "config" / "config.yaml"))
+    with tempfile.TemporaryDirectory() as tmp, contextlib.chdir(tmp):  # results/specs/ there
+        written = {
+            "rollout": job.write_rollout("pid", "truth", "truth"),
+            "train": job.write_training("dpm", 0),
+            "aggregate": job.write_grid(),
+        }
+        text = {name: Path(path).read_text() for name, path in written.items()}
     return {
-        "rollout": (specs.rollout(config, "pid", "truth"),
+        "rollout": (text["rollout"],
                     lambda c: (RunSpec.from_config(c, "pid"), TracksSpec.from_config(c))),
-        "train": (specs.training(config, "dpm", 0), lambda c: TrainingSpec.from_config(c, "dpm")),
-        "aggregate": (specs.grid(config), lambda c: study_grid(StudySpec.from_config(c))),
+        "train": (text["train"], lambda c: TrainingSpec.from_config(c, "dpm")),
+        "aggregate": (text["aggregate"], lambda c: study_grid(StudySpec.from_config(c))),
     }  # fmt: skip
 
 

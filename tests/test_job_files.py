@@ -91,7 +91,7 @@ def test_a_notebooks_parameters_are_strings_as_papermill_r_passes_them(jobs: Job
 
 
 def test_a_notebook_reads_the_sections_it_declares(jobs: JobFiles) -> None:
-    from cape.study.outputs import STUDY_NOTEBOOKS
+    from cape.study.reports.outputs import STUDY_NOTEBOOKS
 
     path = jobs.write_notebook("bicycle")
     assert Path(path).parent.name == "notebook_bicycle"

@@ -33,7 +33,7 @@ FOLDER_DELETED = re.compile(r"delete (the |this |its )?([\w']+ )?folder", re.IGN
 """Advice to delete a whole folder, `rm` or not."""
 
 ALLOWED = {
-    ("cape/models/training.py", "Checkpointing.load"): (
+    ("cape/training/loop.py", "Checkpointing.load"): (
         "`rm <checkpoint>`: the resume checkpoint that `cape train` itself writes into its own "
         "--out folder while it trains (checkpoint-<fingerprint>.pt), named file by file; the "
         "command that reads it is the one that wrote it"
@@ -247,9 +247,11 @@ def _specs(folder: Path) -> dict[str, tuple[Path, str]]:
     """An empty spec, a truncated one (a real rollout spec cut in half), a foreign one (the
     YAML config itself, not a job's JSON), each with the words its refusal holds."""
     from cape.config import load_config
-    from cape.workflow import specs
+    from cape.workflow.job_files import JobFiles
 
-    whole = specs.rollout(load_config(REPO_ROOT / "config" / "config.yaml"), "pid", "truth")
+    with contextlib.chdir(folder):  # the job file is written under results/specs/ there
+        job = JobFiles(load_config(REPO_ROOT / "config" / "config.yaml"))
+        whole = Path(job.write_rollout("pid", "truth", "truth")).read_text()
     config = (REPO_ROOT / "config" / "config.yaml").read_text()
     made = {"empty": ("", "is empty"), "truncated": (whole[: len(whole) // 2], "not valid JSON"),
             "foreign": (config, "not valid JSON")}  # fmt: skip
@@ -414,7 +416,7 @@ def test_interval_refuses_an_infinite_or_overflowing_effect() -> None:
     import warnings
 
     from cape.errors import CapeError
-    from cape.study.verdicts import UnusableEffectsError, equivalence_p, interval
+    from cape.study.stats.verdicts import UnusableEffectsError, equivalence_p, interval
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a RuntimeWarning fails the test
@@ -439,9 +441,9 @@ def test_the_least_seeds_a_later_draw_gets_is_kept() -> None:
     """`question.seeds.least` above the study's seeds (here 8 over 5) was lowered to them (or to
     the measured most) without a word. Now the most a later draw may get is at least the
     least, and where no cost is measured the later draws get the least, saying so."""
-    from cape.study.question import next_seeds
-    from cape.study.question_plan import QuestionSettings
-    from cape.study.question_report import Cost, most_seeds
+    from cape.study.question.looks import next_seeds
+    from cape.study.question.plan import QuestionSettings
+    from cape.study.question.report import Cost, most_seeds
 
     margins = {"lap_time_penalised": 0.2}
     settings = QuestionSettings(("epm", "dpm"), (3, 6), 0.05, 2.0, margins, "truth", ("0",), 5,

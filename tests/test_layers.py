@@ -1,7 +1,7 @@
 """The code base's floors: no module imports a package above its own (docs/architecture.md).
 
-cli, workflow → study → plots → closedloop → controllers → models → data → tracks → vehicle →
-specs (what a job reads) → config, registry, numerics → layout (every name and path) → the
+cli, workflow → study → plots → closedloop → controllers → training → models → data → tracks →
+vehicle → specs (what a job reads) → config, registry, numerics → layout (every name and path) → the
 bottom floor: errors, storage (the write policy), schemas, processes, …: the order in which a
 run is built, each floor using only the ones below.
 """
@@ -16,8 +16,8 @@ from cape.config import REPO_ROOT
 FLOORS = [
     ("errors", "storage", "paper", "bytecode", "schemas", "processes"),
     ("layout",), ("config", "registry", "numerics"), ("specs",), ("vehicle",), ("tracks",),
-    ("data",), ("models",), ("controllers",), ("closedloop",), ("plots",), ("study",),
-    ("cli", "workflow"),
+    ("data",), ("models",), ("training",), ("controllers",), ("closedloop",), ("plots",),
+    ("study",), ("cli", "workflow"),
 ]  # fmt: skip
 LEVEL = {name: level for level, names in enumerate(FLOORS) for name in names}
 

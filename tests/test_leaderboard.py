@@ -1,4 +1,5 @@
-"""Table 9, the leaderboard (cape.study.leaderboard): hand-made runs, hand-computed values."""
+"""Table 9, the leaderboard (cape.study.claims.leaderboard): hand-made runs, hand-computed
+values."""
 
 from __future__ import annotations
 
@@ -6,8 +7,8 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from cape.study.leaderboard import HIGHER, leaderboard, metric_of
-from cape.study.verdicts import INCONCLUSIVE
+from cape.study.claims.leaderboard import HIGHER, leaderboard, metric_of
+from cape.study.stats.verdicts import INCONCLUSIVE
 
 NOISE = [0.2, -0.2, 0.1, -0.1, 0.0]  # each draw's seeds around its lap time (mean 0)
 LAPS = {  # the adaptive NMPC's lap time per draw

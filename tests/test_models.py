@@ -19,8 +19,8 @@ from cape.models.base import LearnedModel
 from cape.models.network import NumpyNetwork, load_network, save_network
 from cape.models.physics import ModelPhysics
 from cape.models.trained import TrainedModel
-from cape.models.training import build_model
 from cape.paper import PARAMETER_COUNT_CHECK
+from cape.training.loop import build_model
 from cape.vehicle import GROUND_TRUTH, velocity_derivatives
 
 TS = 0.02

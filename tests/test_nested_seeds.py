@@ -21,7 +21,7 @@ from cape.layout.names import NMPCS
 from cape.layout.runs import RunId
 from cape.specs.study import StudySpec
 from cape.study.grid import canonical, count_runs, study_grid, study_runs
-from cape.study.question_plan import Plan, QuestionSettings, run_overrides, stage_runs
+from cape.study.question.plan import Plan, QuestionSettings, run_overrides, stage_runs
 
 STRIDE = 1000
 """The schema's default ``study.seed_stride``."""

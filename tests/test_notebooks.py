@@ -12,9 +12,9 @@ import pytest
 
 from cape.config import REPO_ROOT
 from cape.storage.tables import to_html, to_markdown
-from cape.study.notebook import show_table
-from cape.study.notebook_html import HEADER, ShortParameters, short_parameters
-from cape.study.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS, figure_heading
+from cape.study.reports.notebook import show_table
+from cape.study.reports.notebook_html import HEADER, ShortParameters, short_parameters
+from cape.study.reports.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS, figure_heading
 
 
 def _injected(config: dict) -> str:

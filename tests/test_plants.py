@@ -8,7 +8,7 @@ import pytest
 from cape.closedloop.disturbances import ParameterMismatch
 from cape.closedloop.plants import FixedParameterPlant, LearnedPlant, TruthPlant, advance_pose
 from cape.models.trained import TrainedModel
-from cape.models.training import build_model
+from cape.training.loop import build_model
 from cape.vehicle import GROUND_TRUTH, state_derivative
 
 TS = 0.02

@@ -13,11 +13,10 @@ import yaml
 from commands import cape, one_message
 from conftest import workdir
 
-from cape.cli.question import merged_config
-from cape.config import REPO_ROOT
+from cape.config import REPO_ROOT, merged_config
 from cape.specs.study import StudySpec
-from cape.study.question_plan import QuestionSettings
-from cape.study.question_state import FORMAT, QuestionState
+from cape.study.question.plan import QuestionSettings
+from cape.study.question.state import FORMAT, QuestionState
 
 ARGS = ("question", "--configfile", "config/q.yaml", "--dry-run")
 
@@ -106,7 +105,7 @@ def test_a_resumed_trainings_cpu_counts_every_part(tmp_path: Path, monkeypatch) 
     before that is scaled up from its benchmark's last part by its whole wall time, never
     counted as that last part alone (the first stage's DDM trainings read ~30 % low so)."""
     from cape.layout import paths
-    from cape.study.question_report import training_cpu
+    from cape.study.question.report import training_cpu
 
     monkeypatch.chdir(tmp_path)
     tsv = Path(paths.benchmark("train", "ddm", "seed0.tsv"))

@@ -13,10 +13,10 @@ import pytest
 from commands import cape, one_message
 
 from cape.config import REPO_ROOT
-from cape.study.question import RowState, evaluate, values_frame, values_from_frame
-from cape.study.question_plan import QuestionSettings
-from cape.study.question_report import looks_frame
-from cape.study.question_state import QuestionState
+from cape.study.question.looks import RowState, evaluate, values_frame, values_from_frame
+from cape.study.question.plan import QuestionSettings
+from cape.study.question.report import looks_frame
+from cape.study.question.state import QuestionState
 
 MARGINS = {"lap_time_penalised": 0.2, "mean_abs_ex_penalised": 10.0,
            "mean_abs_ey_penalised": 10.0, "mean_speed": 3.0, "failures": 1.0}  # fmt: skip

@@ -15,7 +15,7 @@ from commands import cape, one_message, snakemake
 from conftest import workdir
 
 from cape.errors import CapeError
-from cape.models.draws import read_outcome
+from cape.training.outcome import read_outcome
 
 TARGETS = [f"results/models/rep{r}/dpm/model.pt" for r in (0, 1)]
 

@@ -410,8 +410,8 @@ def test_the_kernel_environment_is_part_of_a_trainings_identity(
 ) -> None:
     """MKL_CBWR set by hand draws another network: meta.json records it (it said `{}`), and the
     checkpoint's fingerprint holds it, so a checkpoint is never resumed under another setting."""
-    from cape.models.kernels import in_effect
     from cape.specs.training import Kernels
+    from cape.training.kernels import in_effect
 
     data = tmp_path / "ethz.npz"
     np.savez(data, **datasets["ETHZ"])
@@ -503,7 +503,7 @@ def test_a_checkpoint_of_another_training_is_refused(tmp_path: Path) -> None:
     """A checkpoint whose content was written for another fingerprint (copied or renamed by
     hand) is refused with the fix, never resumed."""
     from cape.errors import CapeError
-    from cape.models.training import CHECKPOINT_KEYS, Checkpointing
+    from cape.training.loop import CHECKPOINT_KEYS, Checkpointing
 
     path = tmp_path / "checkpoint.pt"
     Checkpointing(path, "a" * 64).save(dict.fromkeys(CHECKPOINT_KEYS, 0))
@@ -808,8 +808,8 @@ def test_a_kernel_pin_is_refused_once_pytorch_is_loaded(monkeypatch) -> None:
     import torch  # noqa: F401  (loaded, as in any process that has trained)
 
     from cape.errors import CapeError
-    from cape.models.kernels import pin_before_torch
     from cape.specs.training import Kernels
+    from cape.training.kernels import pin_before_torch
 
     monkeypatch.delenv("MKL_CBWR", raising=False)
     with pytest.raises(CapeError, match=r"training\.kernels: PyTorch is already loaded"):

@@ -14,10 +14,10 @@ from scipy import stats
 
 from cape.errors import CapeError
 from cape.specs.study import StudySpec
-from cape.study import sequential_calibration as calib
-from cape.study.question import RowState, evaluate, next_draws
-from cape.study.question_plan import Plan, QuestionSettings, run_overrides, stage_runs
-from cape.study.sequential import (
+from cape.study.question.looks import RowState, evaluate, next_draws
+from cape.study.question.plan import Plan, QuestionSettings, run_overrides, stage_runs
+from cape.study.stats import sequential_calibration as calib
+from cape.study.stats.sequential import (
     CONTRADICTED,
     EQUIVALENT,
     HOLDS,
@@ -187,6 +187,30 @@ def test_later_draws_get_the_seeds_that_pay() -> None:
     assert (out.seeds[:, 0] == 15).mean() > 0.2
 
 
+def test_look_and_simulate_decide_the_same_values_alike() -> None:
+    """``look`` (what `cape question` decides on one row) and ``simulate`` (the calibration's
+    thousands of rows at once) share one rule, ``decide``: replayed look by look through
+    ``look``, the very draws' effects ``simulate`` drew give its decision, the draws it used and
+    its repeated interval, trial by trial (fixed seeds, no futility, no variance floor)."""
+    design = Design((3, 6, 10), rows=1)
+    rows = calib.one_row("normal", 0.6, 1.0, 0.5)
+    procedure = calib.Procedure(rule="fixed", first=4, floor=False)
+    out = calib.simulate(rows, design, procedure, trials=60, seed=7)
+    width = max(procedure.first, procedure.most)  # the seeds simulate draws for each draw
+    values = calib.seed_values(rows, np.random.default_rng(7), 60, design.cap, width)
+    effects = values[:, 0, :, : procedure.first].mean(axis=-1)  # trials × draws: over its seeds
+    decided = set()
+    for t in range(60):
+        for n in design.looks:
+            one = look(effects[t, :n], design, rows[0].margin, rows[0].side, n == design.cap)
+            if one.decision != OPEN:
+                break
+        assert (one.decision, n) == (out.decision[t, 0], out.used[t, 0]), t
+        assert one.low == pytest.approx(out.low[t, 0]) and one.high == pytest.approx(out.high[t, 0])
+        decided.add(one.decision)
+    assert len(decided) >= 2, decided  # the values reach more than one decision
+
+
 # --- the question's plan ---------------------------------------------------------------------
 
 
@@ -276,13 +300,13 @@ def test_the_questions_ddm_recipe_is_the_examples() -> None:
 
 
 def test_the_workflows_question_module_stays_light() -> None:
-    """Snakemake imports cape.study.question_plan whenever it reads the Snakefile (in every job
+    """Snakemake imports cape.study.question.plan whenever it reads the Snakefile (in every job
     of a SLURM group too): it must not pull in pandas or SciPy (about 1.6 s a process)."""
     import subprocess
     import sys
 
     code = (
-        "import sys, cape.study.question_plan; "
+        "import sys, cape.study.question.plan; "
         "print(sorted({'pandas', 'scipy'} & set(sys.modules)))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
@@ -293,9 +317,9 @@ def test_the_projection_to_the_cap_by_hand() -> None:
     """One open row of models a and b at three draws, the cap at six: three more trainings each
     (100 s for a, 50 s for b) list-scheduled on 2 slots end at 250 s; then 6 draws × 2 seeds ×
     10 s of runs over 2 slots, 60 s: 310 s. At most 3 × (100 + 20) + 3 × (50 + 20) = 570 s CPU."""
-    from cape.study.claims import question_claims
-    from cape.study.question_plan import Row
-    from cape.study.question_report import Cost, projected_wall, remaining
+    from cape.study.claims.declared import question_claims
+    from cape.study.question.plan import Row
+    from cape.study.question.report import Cost, projected_wall, remaining
 
     claim = question_claims(["a", "b"])[0]
     states = [RowState(Row(claim, claim.pairs[0], None))]

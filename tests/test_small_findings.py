@@ -14,7 +14,7 @@ from commands import cape, one_message, rollout, snakemake
 from conftest import workdir
 from test_leaderboard import LAPS, _runs
 
-from cape.study.leaderboard import leaderboard
+from cape.study.claims.leaderboard import leaderboard
 
 RUN = Path("runs/truth/rep0/truth/truth/pid/eta0/seed0")
 

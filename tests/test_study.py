@@ -18,10 +18,10 @@ from cape.layout.runs import RunId
 from cape.specs.run import DisturbancesSpec
 from cape.specs.study import StudySpec
 from cape.study.aggregate import collect_runs, mean_ci, summarise
-from cape.study.glance import at_a_glance
+from cape.study.claims.scorecard import ClaimSet, Evidence, evaluate_claims
 from cape.study.grid import canonical, study_runs
-from cape.study.scorecard import ClaimSet, Evidence, evaluate_claims
-from cape.study.tables import (
+from cape.study.reports.glance import at_a_glance
+from cape.study.reports.tables import (
     best_controller,
     controller_parameters,
     success_grid,

@@ -16,10 +16,11 @@ import yaml
 from cape.cli import main
 from cape.data.windows import make_windows
 from cape.errors import CapeError
-from cape.models.checkpoint import load_model, save_model
-from cape.models.evaluate import count_flops, frozen_parameters, multistep_error, one_step_rmse
 from cape.models.layers import gru_stages
-from cape.models.training import (
+from cape.specs.training import TrainingCompile
+from cape.training.checkpoint import load_model, save_model
+from cape.training.evaluate import count_flops, frozen_parameters, multistep_error, one_step_rmse
+from cape.training.loop import (
     AdamStep,
     PaddedBatches,
     TrainingData,
@@ -27,7 +28,6 @@ from cape.models.training import (
     build_model,
     train_model,
 )
-from cape.specs.training import TrainingCompile
 from cape.vehicle import GROUND_TRUTH
 
 TS = 0.02
@@ -273,8 +273,8 @@ def test_exported_network_round_trip_and_its_errors(config, small_data, tmp_path
     or mismatched export fails with the file and the fix."""
     import numpy as np
 
-    from cape.models.checkpoint import export_network
     from cape.models.trained import load_trained
+    from cape.training.checkpoint import export_network
 
     result = _train(config, "epm", small_data[7], epochs=1)
     save_model(result.model, tmp_path, {})
@@ -311,7 +311,7 @@ class _TruePhi:
 
 def test_evaluation_of_a_perfect_model_is_exact(config, datasets) -> None:
     """With Φ = truth the DDM is the data-generating model: every error is rounding."""
-    from cape.models.training import build_model
+    from cape.training.loop import build_model
 
     model = build_model("ddm", config["models"]["ddm"], TS, seed=0)
     model.phi = _TruePhi(model)  # type: ignore[method-assign]
@@ -345,7 +345,7 @@ def test_frozen_parameters_are_medians(config, small_data) -> None:
 
 
 def test_flops_are_counted(config) -> None:
-    from cape.models.training import build_model
+    from cape.training.loop import build_model
 
     ddm = build_model("ddm", config["models"]["ddm"], TS, seed=0)
     flops = count_flops(ddm, np.zeros((5, 7)))
@@ -394,7 +394,7 @@ def test_compiled_training_without_a_compiler_says_how_to_train_eagerly(
 
 
 def test_a_failed_compile_names_its_likely_cause(monkeypatch: pytest.MonkeyPatch) -> None:
-    from cape.models.training import _compile_error
+    from cape.training.loop import _compile_error
 
     monkeypatch.delenv("ATEN_CPU_CAPABILITY", raising=False)
     missing = str(_compile_error(RuntimeError("no compiler found"), missing_compiler=True))
@@ -412,7 +412,7 @@ def test_a_damaged_training_record_is_named_with_its_fix(
     """loss.csv empty or without its columns, best_val_loss null, a checkpoint of this training
     that lacks a key: one CapeError naming the file, never pandas' or torch's own."""
     from cape.models.trained import read_training
-    from cape.models.training import Checkpointing
+    from cape.training.loop import Checkpointing
 
     result = _train(config, "dpm", small_data[10], epochs=1)
     save_model(result.model, tmp_path, {"best_val_loss": 1e-3, "best_epoch": 1},

@@ -41,8 +41,8 @@ def _flip_byte(path: Path, offset: int) -> None:
 # --- trained artefacts ----------------------------------------------------------------------
 @pytest.fixture()
 def model_folder(config, tmp_path: Path) -> Path:
-    from cape.models.checkpoint import save_model
-    from cape.models.training import build_model
+    from cape.training.checkpoint import save_model
+    from cape.training.loop import build_model
 
     model = build_model("dpm", config["models"]["dpm"], TS, seed=0)
     save_model(model, tmp_path, {"seed": 0})
@@ -50,7 +50,7 @@ def model_folder(config, tmp_path: Path) -> Path:
 
 
 def test_corrupted_weights_are_refused_not_exported_as_nan(model_folder: Path) -> None:
-    from cape.models.checkpoint import export_network
+    from cape.training.checkpoint import export_network
 
     export_network(model_folder)  # intact: fine
     _flip_byte(model_folder / "model.pt", -200)  # inside the tensor data
@@ -59,8 +59,8 @@ def test_corrupted_weights_are_refused_not_exported_as_nan(model_folder: Path) -
 
 
 def test_a_changed_network_file_is_refused(model_folder: Path) -> None:
-    from cape.models.checkpoint import export_network
     from cape.models.network import load_network
+    from cape.training.checkpoint import export_network
 
     path = export_network(model_folder)
     with np.load(path) as npz:
@@ -103,8 +103,8 @@ def test_damaged_raceline_and_frozen_phi_are_refused(config, track_dir, tmp_path
     with pytest.raises(CapeError, match=r"line\.npz: not a readable raceline"):
         load_reference(reference, str(line))
 
-    from cape.models.checkpoint import save_model
-    from cape.models.training import build_model
+    from cape.training.checkpoint import save_model
+    from cape.training.loop import build_model
 
     folder = tmp_path / "models" / "ddm"
     save_model(build_model("ddm", config["models"]["ddm"], TS, seed=0), folder, {"seed": 0})
@@ -141,7 +141,7 @@ def test_a_damaged_compiled_library_is_refused_not_loaded(tmp_path: Path) -> Non
 
 def test_a_damaged_compiled_phi_is_refused_not_loaded(config, tmp_path: Path) -> None:
     from cape.models.network import load_network, save_network
-    from cape.models.training import build_model
+    from cape.training.loop import build_model
 
     spec = {**config["models"]["ddm"], "gru": {"hidden": 2, "layers": 1}}
     spec["head"] = {"width": 8, "layers": 1, "activation": "mish"}

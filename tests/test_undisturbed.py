@@ -13,7 +13,7 @@ import pytest
 from cape.layout.record import write_run_files, write_timing
 from cape.layout.runs import RunId
 from cape.study.aggregate import collect_runs
-from cape.study.undisturbed import slip_extent, undisturbed
+from cape.study.reports.undisturbed import slip_extent, undisturbed
 
 STUDIES = ()  # no study here is about its internal model
 
@@ -92,7 +92,7 @@ def test_each_failed_cell_names_its_cause(tmp_path: Path) -> None:
 def test_each_plants_failures_are_counted_apart_from_its_controllers() -> None:
     """RESULTS.md's count: per study and plant, the failed runs and how many of them were the
     plant's own (plant_diverged), beside the controllers' (off track, timeout)."""
-    from cape.study.tables import plant_failures
+    from cape.study.reports.tables import plant_failures
 
     runs = pd.DataFrame(
         {

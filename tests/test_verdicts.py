@@ -14,14 +14,13 @@ import pytest
 from scipy import stats
 
 from cape.layout.runs import RunId
-from cape.models.health import outliers, training_checks
 from cape.specs.study import StudySpec
 from cape.specs.training import HealthSettings, RmseBar, Stall
-from cape.study.calibration import exclusion_rate, nested, t_over_draws
-from cape.study.claims import ClosedLoopClaim, Context, Pair, controllers
+from cape.study.claims.declared import ClosedLoopClaim, Context, Pair, controllers
+from cape.study.claims.scorecard import ClaimSet, Evidence, evaluate_claims, presented
 from cape.study.grid import canonical, study_runs
-from cape.study.scorecard import ClaimSet, Evidence, evaluate_claims, presented
-from cape.study.verdicts import (
+from cape.study.stats.calibration import exclusion_rate, nested, t_over_draws
+from cape.study.stats.verdicts import (
     CONTRADICTED,
     DRAWS,
     HOLDS,
@@ -37,6 +36,7 @@ from cape.study.verdicts import (
     interval,
     verdict,
 )
+from cape.training.health import outliers, training_checks
 
 
 def test_the_interval_is_students_t_over_the_draws_means() -> None:
@@ -246,7 +246,7 @@ def test_networks_that_agree_can_leave_the_class_undecided() -> None:
 def test_one_draw_says_its_verdicts_are_this_draws() -> None:
     """The default target's single draw: one verdict column, named for the draw, no per-draw
     or draws-needed columns; RESULTS.md says so and names the command for class verdicts."""
-    from cape.study.glance import at_a_glance
+    from cape.study.reports.glance import at_a_glance
 
     claim = _claim(Pair("epm", "ddm", -1.0, "−1"), Pair("epm", "dpm", -1.0, "−1"))
     runs = _laps([0])
@@ -321,8 +321,8 @@ def test_the_papers_study_runs_for_every_replicate_and_the_others_for_replicate_
 
 
 def test_a_row_of_replicate_0_alone_holds_everywhere_it_was_measured() -> None:
-    from cape.study.scorecard import counts
-    from cape.study.table8 import ClaimRow, DrawResult, frame
+    from cape.study.claims.scorecard import counts
+    from cape.study.claims.table8 import ClaimRow, DrawResult, frame
 
     def row(*draws: str) -> ClaimRow:
         per = {r: DrawResult(verdict=v) for r, v in enumerate(draws) if v}
@@ -338,9 +338,9 @@ def test_a_row_of_replicate_0_alone_holds_everywhere_it_was_measured() -> None:
 def test_a_claim_the_study_cannot_evaluate_is_listed_with_why() -> None:
     """A study without the adaptive NMPC (and no bicycle study): its claims stay in table 8 and
     RESULTS.md as "not evaluated", each with its reason, instead of vanishing."""
-    from cape.study.claims import CLOSED_LOOP
-    from cape.study.glance import at_a_glance
-    from cape.study.scorecard import counts
+    from cape.study.claims.declared import CLOSED_LOOP
+    from cape.study.claims.scorecard import counts
+    from cape.study.reports.glance import at_a_glance
 
     runs = _laps([0, 1]).assign(controller="pid")
     table, _ = evaluate_claims(Evidence(runs), ClaimSet(CLOSED_LOOP, model=[]))
@@ -361,8 +361,8 @@ def test_the_ground_truth_plants_rows_are_judged_the_same_way_beside_the_papers(
     plant): CAPE's own rows, setting "ground-truth plant", no paper value, the same interval
     over the draws; EPM 1.0–1.2 s faster than DDM in every draw holds, and RESULTS.md opens
     with both sets side by side."""
-    from cape.study.claims import GROUND_TRUTH, GROUND_TRUTH_CLAIMS
-    from cape.study.glance import at_a_glance
+    from cape.study.claims.declared import GROUND_TRUTH, GROUND_TRUTH_CLAIMS
+    from cape.study.reports.glance import at_a_glance
 
     car = _laps([0, 1, 2]).assign(study="truth", plant="truth")
     adaptive = [c for c in GROUND_TRUTH_CLAIMS if "adaptive" in c.name]
@@ -416,7 +416,7 @@ def test_the_fdr_adjusted_verdicts_keep_the_false_discovery_rate(draws: int) -> 
     three and five draws: the Benjamini–Hochberg verdicts' false-discovery rate stays at most
     5 % (expected 2.5 %: q × the null share), while at three draws the same rows unadjusted
     exceed 5 % (6.4 % over these 600 families; 4.6 % at five draws)."""
-    from cape.study.calibration import fdr_family
+    from cape.study.stats.calibration import fdr_family
 
     fdr, raw, power = fdr_family(draws, trials=600, seed=draws)
     assert fdr <= 0.05, f"R = {draws}: FDR {fdr:.1%}"
@@ -433,7 +433,7 @@ def test_verdicts_over_trained_draws_stay_calibrated_when_half_the_trainings_fai
     by 5 σ_between. With failed trainings replaced by the next seed (up to 2R) and the verdict
     over the trained draws, at most 6.5 % of 2000 null trials decide (5 % nominal, three Monte
     Carlo standard errors); keeping the failed trainings, as before, decides far more often."""
-    from cape.study.calibration import replaced_failures
+    from cape.study.stats.calibration import replaced_failures
 
     trained, kept = replaced_failures(draws, trials=2000, seed=draws)
     assert trained <= 0.065, f"R = {draws}: {trained:.1%} false verdicts over trained draws"
@@ -447,10 +447,10 @@ def test_a_row_inside_its_margin_is_equivalent_by_statsmodels_tost() -> None:
     column, RESULTS.md and table 9; with a margin of 0.01 s, or none, it stays inconclusive."""
     from statsmodels.stats.weightstats import DescrStatsW
 
-    from cape.study.glance import at_a_glance
-    from cape.study.leaderboard import leaderboard, recipe
-    from cape.study.scorecard import Settings
-    from cape.study.verdicts import EQUIVALENT
+    from cape.study.claims.leaderboard import leaderboard, recipe
+    from cape.study.claims.scorecard import Settings
+    from cape.study.reports.glance import at_a_glance
+    from cape.study.stats.verdicts import EQUIVALENT
 
     gaps = [0.01, -0.02, 0.005]
     runs = _runs({"epm": [[7.0] * 5] * 3, "ddm": [[7.0 - g] * 5 for g in gaps]})

@@ -18,7 +18,7 @@ import yaml
 from conftest import workdir as _workdir  # shared with the smoke study's fixture
 
 from cape.config import REPO_ROOT
-from cape.study.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS
+from cape.study.reports.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS
 
 SNAKEFILE = REPO_ROOT / "Snakefile"
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -375,7 +375,7 @@ def test_the_smoke_study_builds_every_table_figure_and_notebook(smoke_study: Pat
 
 def _smoke_notebooks(work: Path) -> dict[str, tuple[Path, tuple[str, ...]]]:
     """Each executed notebook of the smoke study → the folder of its figures and the figures
-    it declares (cape.study.outputs), in order."""
+    it declares (cape.study.reports.outputs), in order."""
     config = yaml.safe_load((work / "config" / "config.yaml").read_text())
     smoke = yaml.safe_load((work / "config" / "smoke.yaml").read_text())
     figures = work / "results" / "figures"

@@ -13,7 +13,7 @@ import copy
 import json
 import math
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -340,19 +340,55 @@ def load_config(path: str | Path = DEFAULT_CONFIG) -> dict[str, Any]:
     path = Path(path)
     if path == DEFAULT_CONFIG and not path.is_file():
         path = REPO_ROOT / DEFAULT_CONFIG
+    config = read_config_file(path, "run from the repository root or pass --config PATH.")
+    if not config:
+        raise CapeError(f"{path}: the top level must be a mapping of sections")
+    return validate_config(config, str(path))
+
+
+def merged_config(files: Sequence[str | Path]) -> dict[str, Any]:
+    """The config ``files`` merged in order as Snakemake merges ``--configfile`` (mappings key
+    by key, any other value replaced; an empty file changes nothing), then validated (the
+    schema's defaults filled): how ``cape question`` and ``cape replicates`` read the config
+    they hand Snakemake."""
+    merged: dict[str, Any] = {}
+    for name in files:
+        merge_config(merged, read_config_file(Path(name), "run from the repository root"))
+    return validate_config(merged, " + ".join(map(str, files)))
+
+
+def merge_config(into: dict[str, Any], other: Mapping[str, Any]) -> None:
+    """``other`` merged into ``into`` as Snakemake merges a ``--configfile``: mappings key by
+    key, any other value replaced (by a copy)."""
+    for key, value in other.items():
+        if isinstance(value, Mapping) and isinstance(into.get(key), dict):
+            merge_config(into[key], value)
+        else:
+            into[key] = json.loads(json.dumps(value))
+
+
+def read_config_file(path: Path, missing: str) -> dict[str, Any]:
+    """The sections of the YAML config file ``path``, not yet validated ({} for an empty
+    file): each way it can fail one ``CapeError`` line (``missing``: what to do when there is
+    no such file)."""
     if not path.is_file():
-        raise CapeError(
-            f"config file {path} not found; run from the repository root or pass --config PATH."
-        )
+        raise CapeError(f"config file {path} not found; {missing}")
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError:
+        raise CapeError(f"{path}: not a text file, so no YAML config; give a config file "
+                        "such as config/smoke.yaml") from None  # fmt: skip
+    except OSError as exc:
+        raise CapeError(f"{path}: cannot be read ({exc.strerror})") from None
     import yaml  # here: a rule's job reads its config as JSON
 
     try:
-        config = yaml.safe_load(path.read_text())
+        loaded = yaml.safe_load(text) or {}
     except yaml.YAMLError as exc:
         raise CapeError(f"{path}: not valid YAML ({exc})") from exc
-    if not isinstance(config, dict):
+    if not isinstance(loaded, dict):
         raise CapeError(f"{path}: the top level must be a mapping of sections")
-    return validate_config(config, str(path))
+    return loaded
 
 
 def config_from_args(

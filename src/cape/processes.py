@@ -1,15 +1,17 @@
-"""Operating-system processes, through Linux's /proc: stopping a process and every job it
-started (``stop``, for `cape question`'s Snakemake and the benchmarks'), and what the tests and
-benchmarks measure from outside a process (``threads_of``)."""
+"""Operating-system processes, through Linux's /proc: running a command with its output logged
+(``run_logged``, how `cape question` runs Snakemake), stopping a process and every job it started
+(``stop``, for that Snakemake and the benchmarks'), and what the tests and benchmarks measure
+from outside a process (``threads_of``)."""
 
 from __future__ import annotations
 
 import contextlib
 import os
+import shlex
 import signal
 import subprocess
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 
@@ -76,3 +78,33 @@ def stop(proc: subprocess.Popen, grace: float) -> None:
         jobs |= set(descendants(proc.pid))
         _send([pid for pid in jobs if _alive(pid)], proc.pid, signal.SIGKILL)
         proc.wait()
+
+
+def run_logged(cmd: Sequence[str], log: Path, seen: Callable[[str], None], grace: float) -> int:
+    """Run ``cmd`` in a session of its own, its output appended to ``log`` line by line (after
+    a line with the time and the command, so that a rerun keeps the earlier attempts and
+    ``tail -f`` follows it) and each line handed to ``seen``; its exit status. Stopped
+    (SIGTERM, Ctrl-C), it stops ``cmd`` and every job it started (``stop``) and raises on."""
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with open(log, "a", buffering=1) as out:
+        out.write(f"--- {time.strftime('%Y-%m-%d %H:%M:%S')}\n$ " + shlex.join(cmd) + "\n")
+        out.flush()
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}  # its progress as it happens, not at exit
+        proc = subprocess.Popen(
+            cmd,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            bufsize=1,
+            env=env,
+            start_new_session=True,
+        )
+        assert proc.stdout is not None
+        try:
+            for line in proc.stdout:
+                out.write(line)
+                seen(line)
+            return proc.wait()
+        except BaseException:  # stopped: the command and its jobs with it; a rerun resumes
+            stop(proc, grace=grace)
+            raise

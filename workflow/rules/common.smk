@@ -38,7 +38,7 @@ wildcard_constraints:
 
 def reported_figures(notebook, folder, caption, category):
     """The PNG copies of a notebook's figures for the report, each labelled with its number and
-    title (cape.study.outputs), so that a category lists its figures in order."""
+    title (cape.study.reports.outputs), so that a category lists its figures in order."""
     return [
         in_report(f"{folder}/{name}.png", caption=caption, category=category,
                   labels={"figure": name[:5], "title": title})

@@ -263,7 +263,7 @@ FIGURE_SUFFIXES = (".pdf", ".png", ".svg")
 JSON_SUFFIXES = (".json",)
 
 
-def _claim(args: argparse.Namespace, *outputs: Any) -> None:
+def claim(args: argparse.Namespace, *outputs: Any) -> None:
     """Claim this command's outputs (``cape.storage.ownership``) before any work: each refused
     with one line unless it is new or this command's own earlier output; held until the command
     ends."""
@@ -351,7 +351,7 @@ def _with_provenance(table: Any, items: list[str]) -> Any:
 
 def _load_models(items: list[str]) -> dict[str, Any]:
     """``NAME=DIR`` pairs → trained models, in the order given."""
-    from cape.models.checkpoint import load_model
+    from cape.training.checkpoint import load_model
 
     models = {}
     for item in items:

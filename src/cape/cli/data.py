@@ -7,17 +7,18 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 from cape.cli.common import (
     FIGURE_SUFFIXES,
     _add_config_args,
     _add_outputs,
     _add_tracks_dir,
-    _claim,
     _config,
     _files,
     _tracks_dir,
     bounded,
+    claim,
     command,
 )
 from cape.errors import CapeError
@@ -49,7 +50,7 @@ def cmd_tracks(args: argparse.Namespace) -> None:
 
     option = "--dest" if args.dest else "tracks.dir"
     where = dest.resolve() if dest.is_symlink() else dest  # a link to the files' folder: there
-    _claim(args, Output(where, "folder of track files", folder=True, option=option,
+    claim(args, Output(where, "folder of track files", folder=True, option=option,
                         recognise=tracks_only))  # fmt: skip
     obtain_tracks(
         dest=dest,
@@ -78,7 +79,7 @@ def cmd_data(args: argparse.Namespace) -> None:
 
     spec = DataSpec.from_config(_config(args))
     raceline_file = entry_of(spec.racelines, args.track, "--track", "data.tracks")
-    _claim(args, Output(Path(args.out), "data set", args.track, (".npz",)))
+    claim(args, Output(Path(args.out), "data set", args.track, (".npz",)))
     tracks_dir = _tracks_dir(args, spec.tracks)
     settings = ProtocolSettings.of(spec.data, args.track)
     raceline = load_raceline(tracks_dir, raceline_file)
@@ -113,7 +114,7 @@ def cmd_plot_tracks(args: argparse.Namespace) -> None:
     spec = DataSpec.from_config(_config(args))
     catalogue, data_tracks = spec.tracks.catalogue, spec.racelines
     tracks_dir = _tracks_dir(args, spec.tracks)
-    _claim(args, *_files(args.out, "figure of the tracks", FIGURE_SUFFIXES))
+    claim(args, *_files(args.out, "figure of the tracks", FIGURE_SUFFIXES))
     panels, drawn = [], set()
     for item in args.data:
         name, sep, path = item.partition("=")
@@ -153,6 +154,14 @@ def _raceline_arguments(p: argparse.ArgumentParser) -> None:
     _add_config_args(p)
 
 
+def _raceline_arrays(line: Any) -> dict[str, Any]:
+    """What a raceline file holds: the line, its speed, and its path's s, heading, curvature."""
+    path = line.path
+    return {"x": line.x, "y": line.y, "speed": line.speed, "s": path.s_points,
+            "heading": path.heading(path.s_points),
+            "curvature": path.curvature(path.s_points)}  # fmt: skip
+
+
 @command("raceline", "CAPE's minimum-curvature reference raceline (SPEC §2)", _raceline_arguments)
 def cmd_raceline(args: argparse.Namespace) -> None:
     from cape.plots.style import save_figure
@@ -169,7 +178,7 @@ def cmd_raceline(args: argparse.Namespace) -> None:
     spec = RacelineSpec.from_config(_config(args))
     settings = spec.reference
     entry = entry_of(spec.tracks.catalogue, args.track, "--track", "tracks.catalogue")
-    _claim(args, Output(Path(args.out), "raceline", args.track, (".npz",)),
+    claim(args, Output(Path(args.out), "raceline", args.track, (".npz",)),
            *_files(args.figure or [], "raceline figure", FIGURE_SUFFIXES, "--figure"))  # fmt: skip
     tracks_dir = _tracks_dir(args, spec.tracks)
     track = load_track(tracks_dir, args.track, entry.prefix, entry.width)
@@ -178,17 +187,7 @@ def cmd_raceline(args: argparse.Namespace) -> None:
     ideal = ideal_lap_time(path, line.speed, settings)
     if args.time_limit is not None:  # before anything is written: no run could finish
         check_time_limit(args.time_limit, ideal)
-    save_npz(
-        args.out,
-        **sealed_arrays({
-            "x": line.x,
-            "y": line.y,
-            "speed": line.speed,
-            "s": path.s_points,
-            "heading": path.heading(path.s_points),
-            "curvature": path.curvature(path.s_points),
-        }),
-    )  # fmt: skip
+    save_npz(args.out, **sealed_arrays(_raceline_arrays(line)))
     title = (
         f"{args.track}: CAPE raceline {path.length:.2f} m; ideal lap {lap_time(line):.2f} s at "
         f"v_path,\n{ideal:.2f} s at the reference speed (scale {settings.scale}, "

@@ -18,7 +18,6 @@ from cape.cli.common import (
     _add_config_args,
     _add_models,
     _add_outputs,
-    _claim,
     _config,
     _files,
     _load_models,
@@ -26,6 +25,7 @@ from cape.cli.common import (
     _read_dataset,
     _with_provenance,
     bounded,
+    claim,
     command,
     model_made,
 )
@@ -73,15 +73,15 @@ def _train_arguments(p: argparse.ArgumentParser) -> None:
 
 @command("train", "train a learned model on the ETHZ windows (SPEC §4)", _train_arguments)
 def cmd_train(args: argparse.Namespace) -> None:
-    from cape.models.kernels import pin_before_torch, pin_inductor
     from cape.specs.training import TrainingSpec
+    from cape.training.kernels import pin_before_torch, pin_inductor
 
     spec = TrainingSpec.from_config(_config(args), args.model)
     pin_before_torch(spec.kernels)  # MKL's and ATen's code paths are read when PyTorch loads
     pin_inductor(spec.kernels)
-    from cape.models.checkpoint import save_model
-    from cape.models.training_run import planned_identity, run_training
     from cape.storage.integrity import file_digest
+    from cape.training.checkpoint import save_model
+    from cape.training.run import planned_identity, run_training
 
     out = Path(args.out)  # --epochs, --threads, ... were checked (common.check_bounds)
     try:
@@ -91,26 +91,14 @@ def cmd_train(args: argparse.Namespace) -> None:
     training = planned_identity(spec, data_sha256 or "unreadable", args.seed, args.epochs,
                                 args.threads)  # fmt: skip
     as_draw = "" if args.replicate is None else f" as draw {args.replicate}"
-    _claim(args, _training_output(out, training + as_draw))  # before reading, before training
+    claim(args, _training_output(out, training + as_draw))  # before reading, before training
     dataset = _read_dataset(args.data)
-    run = run_training(
-        spec,
-        dataset,
-        Path(args.data),
-        out,
-        seed=args.seed,
-        epochs=args.epochs,
-        threads=args.threads,
-        replicate=args.replicate,
-        checkpoint_every=args.checkpoint_every,
-        data_sha256=data_sha256,
-    )
+    run = run_training(spec, dataset, Path(args.data), out, seed=args.seed, epochs=args.epochs,
+                       threads=args.threads, replicate=args.replicate,
+                       checkpoint_every=args.checkpoint_every, data_sha256=data_sha256)  # fmt: skip
     result = run.result
-    if result.rewritten:
-        print(f"already trained: its outputs rewritten from {run.checkpoint} (epoch "
-              f"{len(result.losses)})")  # fmt: skip
-    elif result.resumed_from:
-        print(f"resumed from {run.checkpoint} after epoch {result.resumed_from}")
+    if result.rewritten or result.resumed_from:
+        print(_resumed(run))
     # the checkpoint of the last epoch stays: a rerun after a crash (Snakemake deletes the
     # outputs of a job it had not recorded as finished) rewrites them from it in seconds
     save_model(run.model, out, run.meta, {paths.LOSSES: run.losses_csv.encode()})
@@ -121,9 +109,17 @@ def cmd_train(args: argparse.Namespace) -> None:
     )
 
 
+def _resumed(run: Any) -> str:
+    """How a training that did not start afresh went on: rewritten, or resumed."""
+    if run.result.rewritten:
+        return (f"already trained: its outputs rewritten from {run.checkpoint} (epoch "
+                f"{len(run.result.losses)})")  # fmt: skip
+    return f"resumed from {run.checkpoint} after epoch {run.result.resumed_from}"
+
+
 def _training_output(out: Path, identity: str) -> Any:
     """A training's folder as an output (``cape.storage.ownership``): its identity is its
-    model, seed and recipe digest (``cape.models.training_run.training_identity``)."""
+    model, seed and recipe digest (``cape.training.run.training_identity``)."""
     from cape.storage.ownership import Output
 
     files = (paths.WEIGHTS, paths.META, paths.LOSSES)
@@ -175,16 +171,16 @@ def _check_training_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_check_training(args: argparse.Namespace) -> None:
     import json
 
-    from cape.models.draws import train_loss
-    from cape.models.evaluate import one_step_rmse
-    from cape.models.health import training_outcome
     from cape.models.trained import read_meta
-    from cape.models.training import TrainingData
     from cape.storage.io import write_text
     from cape.storage.ownership import Output
+    from cape.training.draws import train_loss
+    from cape.training.evaluate import one_step_rmse
+    from cape.training.health import training_outcome
+    from cape.training.loop import TrainingData
 
     settings = _spec(args)
-    _claim(args, Output(Path(args.out), "health record", _made_from_weights(args.model),
+    claim(args, Output(Path(args.out), "health record", _made_from_weights(args.model),
                         JSON_SUFFIXES))  # fmt: skip
     ((name, model),) = _load_models([args.model]).items()
     folder = Path(args.model.partition("=")[2])
@@ -233,8 +229,8 @@ def _draw_arguments(p: argparse.ArgumentParser) -> None:
     _draw_arguments,
 )
 def cmd_draw(args: argparse.Namespace) -> None:
-    from cape.models.draws import make_draw
     from cape.storage.io import write_files
+    from cape.training.draws import make_draw
 
     out = Path(args.out)  # --replicate and --max-trainings were checked (common.check_bounds)
     settings = _spec(args).health
@@ -243,7 +239,7 @@ def cmd_draw(args: argparse.Namespace) -> None:
     draw = make_draw(
         args.model, args.replicate, args.max_trainings, [Path(t) for t in args.training], settings
     )
-    _claim(args, _draw_output(out, args.model, args.replicate, draw, args.max_trainings))
+    claim(args, _draw_output(out, args.model, args.replicate, draw, args.max_trainings))
     write_files({out / name: content for name, content in draw.files.items()})
     choice = draw.choice
     said = "trained" if choice.trained else "failed (the cap was reached)"
@@ -269,15 +265,15 @@ def _freeze_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_freeze(args: argparse.Namespace) -> None:
     import json
 
-    from cape.models.evaluate import frozen_parameters
     from cape.models.trained import read_meta
-    from cape.models.training import TrainingData
     from cape.storage.integrity import sealed_record
     from cape.storage.io import write_text
     from cape.storage.ownership import Output
+    from cape.training.evaluate import frozen_parameters
+    from cape.training.loop import TrainingData
 
     split = _spec(args).split
-    _claim(args, Output(Path(args.out), "frozen parameters", _made_from_weights(args.model),
+    claim(args, Output(Path(args.out), "frozen parameters", _made_from_weights(args.model),
                         JSON_SUFFIXES))  # fmt: skip
     ((name, model),) = _load_models([args.model]).items()
     data = TrainingData.from_dataset(
@@ -307,7 +303,7 @@ def _export_network_arguments(p: argparse.ArgumentParser) -> None:
     _export_network_arguments,
 )
 def cmd_export_network(args: argparse.Namespace) -> None:
-    from cape.models.checkpoint import export_network
+    from cape.training.checkpoint import export_network
 
     name, sep, folder = args.model.partition("=")
     if not sep:
@@ -318,7 +314,7 @@ def cmd_export_network(args: argparse.Namespace) -> None:
 
     compile_settings = _spec(args).rollout_compile  # a bad --spec: refused before any work
     target = Path(args.out) if args.out else Path(folder) / paths.NETWORK
-    _claim(args, Output(target, "network", _made_from_weights(args.model), (".npz",)))
+    claim(args, Output(target, "network", _made_from_weights(args.model), (".npz",)))
     out = export_network(folder, target, expected_name=name)
     print(f"wrote {out}: the {name} network for the closed loop")
     if compile_settings is not None and compile_settings.enabled:
@@ -347,13 +343,13 @@ def cmd_openloop(args: argparse.Namespace) -> None:
     import numpy as np
     import torch
 
-    from cape.models.evaluate import rear_slip
-    from cape.models.report import openloop_table
     from cape.storage.tables import write_table
+    from cape.training.evaluate import rear_slip
+    from cape.training.model_tables import openloop_table
 
     settings = _spec(args)
     made = _made_from(args.model, [args.train_data, args.test_data], settings)
-    _claim(args, *_files(args.out, "open-loop error table", TABLE_SUFFIXES, identity=made))
+    claim(args, *_files(args.out, "open-loop error table", TABLE_SUFFIXES, identity=made))
     torch.set_num_threads(1)  # the same numbers on any machine, by hand as in the workflow
     horizon = settings.multistep_horizon
     train, test = _read_dataset(args.train_data), _read_dataset(args.test_data)
@@ -394,12 +390,12 @@ def cmd_complexity(args: argparse.Namespace) -> None:
     import torch
 
     from cape.data.windows import make_windows
-    from cape.models.report import complexity_table
     from cape.storage.tables import write_table
+    from cape.training.model_tables import complexity_table
 
     settings = _spec(args)
     made = _made_from(args.model, [args.data], settings)
-    _claim(args, *_files(args.out, "complexity table", TABLE_SUFFIXES, identity=made))
+    claim(args, *_files(args.out, "complexity table", TABLE_SUFFIXES, identity=made))
     torch.set_num_threads(1)
     models = _load_models(args.model)
     data = _read_dataset(args.data)
@@ -435,10 +431,10 @@ def cmd_plot_models(args: argparse.Namespace) -> None:
     import numpy as np
 
     from cape.data.windows import make_windows
-    from cape.models.evaluate import predict_phi
     from cape.models.trained import read_training
     from cape.plots.models import plot_phi, plot_training_curves
     from cape.plots.style import save_figure
+    from cape.training.evaluate import predict_phi
     from cape.vehicle.dynamics import drivetrain_force
     from cape.vehicle.params import GROUND_TRUTH
 
@@ -447,12 +443,11 @@ def cmd_plot_models(args: argparse.Namespace) -> None:
     figures = _files(args.phi_out, "figure of predicted Φ", FIGURE_SUFFIXES, "--phi-out", made)
     figures += _files(args.curves_out, "figure of training curves", FIGURE_SUFFIXES,
                       "--curves-out", made)  # fmt: skip
-    _claim(args, *figures)
-    ts = settings.ts
+    claim(args, *figures)
     models = _load_models(args.model)
     colors, labels = settings.colors_labels(list(models))
     data = _read_dataset(args.data)
-    phis, time = {}, None
+    phis = {}
     for name, model in models.items():
         windows = make_windows(data, model.history)
         phis[name] = (list(model.param_names), predict_phi(model, windows.features))
@@ -461,12 +456,11 @@ def cmd_plot_models(args: argparse.Namespace) -> None:
     aligned = {n: (pn, phi[-shortest:]) for n, (pn, phi) in phis.items()}
     time = data["time"][-shortest:]
     steps = np.arange(data["inputs"].shape[1])[-shortest - 1 : -1]
-    true_frx = drivetrain_force(
+    frx = drivetrain_force(
         data["dstates"][3, steps], data["inputs"][0, steps], GROUND_TRUTH.as_dict()
     )
-    save_figure(plot_phi(aligned, time, colors, labels, ts, true_frx), *args.phi_out)
-    losses = {}
-    best = {}
+    save_figure(plot_phi(aligned, time, colors, labels, settings.ts, frx), *args.phi_out)
+    losses, best = {}, {}
     for item in args.model:
         name, _, folder = item.partition("=")
         losses[name], meta = read_training(folder)

@@ -19,10 +19,10 @@ from cape.cli.common import (
     _add_config_args,
     _add_model_folders,
     _add_outputs,
-    _claim,
     _config,
     _files,
     _model_folders,
+    claim,
     command,
 )
 from cape.layout import paths
@@ -56,7 +56,7 @@ def cmd_build_solver(args: argparse.Namespace) -> None:
 
     spec = RunSpec.from_config(_config(args), args.controller)
     identity = f"{args.controller} with internal model {args.internal}"
-    _claim(args, Output(Path(args.out), "solver record", identity, JSON_SUFFIXES))
+    claim(args, Output(Path(args.out), "solver record", identity, JSON_SUFFIXES))
     run = build_run(
         spec,
         TRUTH,  # the plant does not enter the controller's NLP
@@ -123,7 +123,7 @@ def cmd_rollout(args: argparse.Namespace) -> None:
     check_run(run)
     spec = RunSpec.from_config(_config(args), args.controller)
     out = Path(args.out)
-    _claim(args, _run_output(out, run, spec))  # before the lap, not after it
+    claim(args, _run_output(out, run, spec))  # before the lap, not after it
     check_replaceable(out, RUN_FILES, RUN_WHAT)
     record = run_job(
         spec,
@@ -177,7 +177,7 @@ def cmd_plot_rollout(args: argparse.Namespace) -> None:
     from cape.specs.run import ReferenceSpec
 
     reference = ReferenceSpec.from_config(_config(args))
-    _claim(args, *_files(args.out, "figure of a run", FIGURE_SUFFIXES))
+    claim(args, *_files(args.out, "figure of a run", FIGURE_SUFFIXES))
     run = Path(args.run)
     metrics = read_metrics(run / paths.METRICS)
     series = read_series(run)

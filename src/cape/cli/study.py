@@ -12,8 +12,8 @@ from typing import Any
 from cape.cli.common import (
     DRAW,
     _add_config_args,
-    _claim,
     _config,
+    claim,
     command,
 )
 from cape.errors import CapeError
@@ -67,7 +67,7 @@ def cmd_aggregate(args: argparse.Namespace) -> None:
                  for run, computed in grid.items()
                  if read is None or run.replicate in read]  # fmt: skip
     made = _made_from_runs(pairs, spec, args.models_root)
-    _claim(args, Output(Path(args.out), "table of runs", made, suffixes=(".parquet",)),
+    claim(args, Output(Path(args.out), "table of runs", made, suffixes=(".parquet",)),
            Output(Path(args.summary), "summary of cells", made, suffixes=(".parquet",),
                   option="--summary"))  # fmt: skip
     runs = collect_runs(pairs, spec.internal_studies(), args.models_root)
@@ -130,7 +130,7 @@ def _replicates_arguments(p: argparse.ArgumentParser) -> None:
     _replicates_arguments,
 )
 def cmd_replicates(args: argparse.Namespace) -> None:
-    from cape.study import study_publish as publish
+    from cape.study.reports import study_publish as publish
 
     if args.source:
         folder = Path(args.source)
@@ -145,14 +145,13 @@ def cmd_replicates(args: argparse.Namespace) -> None:
         print(f"cape replicates --from {folder}: {rows} re-derived from evidence/; every "
               f"verdict equal, numbers within {publish.NUMERIC_TOLERANCE:g}")  # fmt: skip
         return
-    from cape.cli.question import merged_config
-    from cape.config import DEFAULT_CONFIG
+    from cape.config import DEFAULT_CONFIG, merged_config
     from cape.storage.ownership import Output
 
     folder = Path(args.publish)
     config = merged_config([str(DEFAULT_CONFIG), *args.configfile])
     names = [*publish.COPIED, paths.STUDY_PROVENANCE]
-    _claim(args, *(Output(folder / n, "published study", option="--publish") for n in names))
+    claim(args, *(Output(folder / n, "published study", option="--publish") for n in names))
     written = publish.publish(args.scope, folder, config)
     print(f"cape replicates --publish: {len(written)} files in {folder}; check them with "
           f"`cape replicates --from {folder}`")  # fmt: skip

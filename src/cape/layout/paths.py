@@ -75,7 +75,7 @@ STUDY_RUNS = f"{{scope}}/study/{RUNS_TABLE}"
 STUDY_SUMMARY = f"{{scope}}/study/{SUMMARY_TABLE}"
 GLANCE = "{scope}/RESULTS.md"
 EVIDENCE = "{scope}/evidence"
-"""A scope's tables 8 and 9 re-derive from this folder alone (cape.study.scorecard_data)."""
+"""A scope's tables 8 and 9 re-derive from this folder alone (cape.study.reports.scorecard_data)."""
 EVIDENCE_FILES = ("values.csv", "draw_tables.csv", "draws.json", "evidence.json")
 """Its files: every run's values the tables read, tables 1 and 4 per draw, each draw's training
 record (meta.json), and the settings and measured numbers the tables read."""

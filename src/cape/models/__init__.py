@@ -1,4 +1,5 @@
-"""Learned vehicle-dynamics models (SPEC §4): DPM, DDM, EPM behind one interface and a registry."""
+"""Learned vehicle-dynamics models (SPEC §4): DPM, DDM, EPM behind one interface and a registry;
+how they are trained is cape.training."""
 
 from cape.models.registry import model_class, register_model
 

@@ -1,6 +1,6 @@
 """Figure 13: each closed-loop claim's effect with its 95 % interval, per training draw (over
 its seeds: one trained network) and over the draws (the model class), beside the paper's value
-(cape.study.scorecard.evaluate_claims computes them)."""
+(cape.study.claims.scorecard.evaluate_claims computes them)."""
 
 from __future__ import annotations
 

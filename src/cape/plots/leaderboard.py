@@ -1,6 +1,6 @@
 """Figure 14: beside table 9, each model's effect against the reference model on the primary
 metric, with its 95 % interval (over the training draws; over the seeds with one draw), one
-panel per study (cape.study.leaderboard computes them)."""
+panel per study (cape.study.claims.leaderboard computes them)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Figure 15: the ground-truth question through its looks: each row's interval at each look
 (the difference's repeated interval, thin; the equivalence interval, thick) against zero and
-its ±margin, and the decision where it stopped (cape.study.question_report.looks_frame)."""
+its ±margin, and the decision where it stopped (cape.study.question.report.looks_frame)."""
 
 from __future__ import annotations
 

@@ -3,7 +3,7 @@
 The backend is Agg everywhere, in the notebooks too: a figure is drawn the same way whether a
 rule's command, a test or a notebook makes it, so the saved files never depend on where they
 were drawn. Agg leaves IPython without its inline image formatter, so the notebooks do not
-``display(fig)``: their ``save`` (cape.study.notebook) shows the PNG it has just written.
+``display(fig)``: their ``save`` (cape.study.reports.notebook) shows the PNG it has just written.
 """
 
 from __future__ import annotations

@@ -46,7 +46,7 @@ class ScorecardSettings:
 class NotebookSpec:
     """The models' and controllers' entries, the disturbances, the study, the reference, the
     training checks and the scorecard's settings; a section the notebook does not read
-    (``cape.study.outputs``: its ``reads``) is empty, or None."""
+    (``cape.study.reports.outputs``: its ``reads``) is empty, or None."""
 
     models: Mapping[str, Entry]
     controllers: Mapping[str, Entry]

@@ -48,7 +48,7 @@ class TrainingCompile:
 @dataclass(frozen=True)
 class Kernels:
     """``training.kernels``: the CPU code paths of a training's kernels, each None where the
-    CPU's own is taken (cape/models/kernels.py)."""
+    CPU's own is taken (cape/training/kernels.py)."""
 
     mkl_cbwr: str | None = None
     aten_capability: str | None = None
@@ -81,7 +81,7 @@ class Stall:
 @dataclass(frozen=True)
 class HealthSettings:
     """``training.health``: the models the bar applies to, the bar, the stalled loss and the
-    outlier factor (cape/models/health.py); a check the section leaves out is None."""
+    outlier factor (cape/training/health.py); a check the section leaves out is None."""
 
     models: tuple[str, ...]
     val_rmse_max: RmseBar | None

@@ -76,7 +76,7 @@ def read_draws(
     model_root: str, replicates: Sequence[int], models: Sequence[str]
 ) -> dict[tuple[int, str], dict]:
     """(replicate, model) → the draw's meta.json (its training, its health and the trainings
-    it was chosen among: ``cape draw``), for cape.models.health's tables."""
+    it was chosen among: ``cape draw``), for cape.training.health's tables."""
     from cape.models.trained import read_meta
 
     draws = [(r, m) for r in replicates for m in models]

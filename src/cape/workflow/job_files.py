@@ -22,7 +22,7 @@ from cape.errors import CapeError
 from cape.layout import paths
 from cape.layout.names import models_read
 from cape.storage.io import write_text
-from cape.study.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS
+from cape.study.reports.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS
 
 RUN_ONLY_KEYS = ("plant_envelope", "failure_window")
 """Rollout settings that judge or bound a run, which no controller's NLP reads."""
@@ -82,7 +82,8 @@ class JobFiles:
         return write_job_file(job, json.dumps(chosen, sort_keys=True))
 
     def write_notebook(self, name: str) -> str:
-        """Notebook ``name``'s sections: those it declares it reads (``cape.study.outputs``)."""
+        """Notebook ``name``'s sections: those it declares it reads
+        (``cape.study.reports.outputs``)."""
         declared = {**STUDY_NOTEBOOKS, **WHOLE_STUDY_NOTEBOOKS}[name]
         return self.write_sections(f"notebook_{name}", *declared.reads)
 

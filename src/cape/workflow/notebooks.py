@@ -9,14 +9,14 @@ from typing import Any
 
 from cape.layout import paths
 from cape.specs.study import StudySpec
-from cape.study.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS, NotebookOutputs
+from cape.study.reports.outputs import STUDY_NOTEBOOKS, WHOLE_STUDY_NOTEBOOKS, NotebookOutputs
 from cape.study.stale import missing_runs
 from cape.workflow.runs import Runs
 from cape.workflow.trainings import Outputs, Trainings
 
 TABLE_EXTS = (".csv", ".md", ".tex")
 DECLARED: dict[str, NotebookOutputs] = {**STUDY_NOTEBOOKS, **WHOLE_STUDY_NOTEBOOKS}
-"""Every notebook's declared figures, tables and config sections (cape.study.outputs)."""
+"""Every notebook's declared figures, tables and config sections (cape.study.reports.outputs)."""
 COMPLEXITY_TABLE, OPENLOOP_TABLE = "table01_model_complexity", "table04_openloop_rmse"
 
 
@@ -46,7 +46,7 @@ class Notebooks:
 
     @staticmethod
     def figures(notebook: str, folder: str, ext: str) -> list[str]:
-        """The figures a notebook declares (cape.study.outputs), as files in ``folder``."""
+        """The figures a notebook declares (cape.study.reports.outputs), as files in ``folder``."""
         return [f"{folder}/{name}{ext}" for name in DECLARED[notebook].figures]
 
     @staticmethod
@@ -113,7 +113,8 @@ def run_notebook(arguments: str) -> str:
         " && jupyter nbconvert --to html {output.notebook:q}.part.ipynb"
         ' --output-dir "$(dirname {output.html:q})"'
         ' --output "$(basename {output.html:q} .html)"'
-        " --HTMLExporter.preprocessors=cape.study.notebook_html.ShortParameters >> {log:q} 2>&1"
+        " --HTMLExporter.preprocessors=cape.study.reports.notebook_html.ShortParameters"
+        " >> {log:q} 2>&1"
         " && mv {output.notebook:q}.part.ipynb {output.notebook:q})"
         " || ((mv -f {output.notebook:q}.part.ipynb {log:q}.failed.ipynb 2> /dev/null"
         ' && echo "the notebook failed; its executed copy, with the failing cell: "'

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 from cape.specs import as_record
 from cape.specs.question import StagePlan
-from cape.study.question_plan import Plan, QuestionSettings, stage_runs
+from cape.study.question.plan import Plan, QuestionSettings, stage_runs
 from cape.workflow.runs import Runs
 from cape.workflow.start import refusals
 

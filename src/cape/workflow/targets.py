@@ -23,7 +23,7 @@ from cape.specs.study import StudySpec
 from cape.specs.tracks import DataSettings, ReferenceSettings, TracksSpec
 from cape.specs.training import TrainingSettings
 from cape.study.grid import study_grid
-from cape.study.question_plan import QuestionSettings
+from cape.study.question.plan import QuestionSettings
 from cape.workflow.notebooks import Notebooks
 from cape.workflow.question_runs import QuestionRuns
 from cape.workflow.runs import Runs

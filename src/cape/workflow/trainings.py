@@ -17,16 +17,10 @@ from typing import Any
 
 from cape.errors import CapeError
 from cape.layout import paths
-from cape.models.draws import (
-    Choice,
-    Outcome,
-    choose_training,
-    deciding_cap,
-    default_max_trainings,
-    read_outcome,
-)
 from cape.specs.study import StudySpec
 from cape.specs.training import TrainingSettings
+from cape.training.draws import Choice, choose_training, deciding_cap, default_max_trainings
+from cape.training.outcome import Outcome, read_outcome
 
 Outputs = Callable[..., list[str]]
 """``outputs(rule, **wildcards)``: the files one job of a rule writes (Snakemake's rules)."""
@@ -87,7 +81,7 @@ class Trainings:
         return 100 + self.epochs[model] // 10
 
     def draw_choice(self, wildcards: Any) -> Choice:
-        """Which training draw r of a model is, asked for in the order of cape.models.draws
+        """Which training draw r of a model is, asked for in the order of cape.training.draws
         (a training not yet checked is planned, and the draw waits for it)."""
         model = wildcards.model
 
@@ -97,7 +91,7 @@ class Trainings:
         return choose_training(int(wildcards.replicate), self.max_trainings, outcome)
 
     def draw_max_trainings(self, wildcards: Any) -> int:
-        """The cap a draw is made under (cape.models.draws.deciding_cap); the configured one
+        """The cap a draw is made under (cape.training.draws.deciding_cap); the configured one
         when a record it reads is no health record: the draw job then runs and `cape draw`
         says what is wrong in one line (its log), not the planner in a traceback."""
         try:

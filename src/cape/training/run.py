@@ -4,7 +4,7 @@ a data set to the trained model and its record (``meta.json``, ``loss.csv``).
 ``run_training`` builds the training's identity (the fingerprint that keys its resumable
 checkpoint), trains, and returns a ``TrainingRun``; ``cape train`` only parses its arguments,
 calls it and writes what it returns. PyTorch's kernels must be pinned before this module is
-imported (``cape.models.kernels.pin_before_torch``).
+imported (``cape.training.kernels.pin_before_torch``).
 """
 
 from __future__ import annotations
@@ -18,9 +18,11 @@ import torch
 
 from cape.config import PRESENTATION_KEYS
 from cape.models.base import LearnedModel
-from cape.models.kernels import in_effect
 from cape.models.trained import FORMAT_VERSION
-from cape.models.training import (
+from cape.specs import as_record
+from cape.specs.training import TrainingSpec
+from cape.training.kernels import in_effect
+from cape.training.loop import (
     TRAINING_STEP,
     Checkpointing,
     TrainingData,
@@ -28,8 +30,6 @@ from cape.models.training import (
     train_model,
     training_fingerprint,
 )
-from cape.specs import as_record
-from cape.specs.training import TrainingSpec
 
 
 @dataclass

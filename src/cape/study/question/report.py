@@ -13,11 +13,11 @@ import pandas as pd
 
 from cape.layout import paths
 from cape.layout.names import replicate_name
-from cape.study.claims import NMPCS
-from cape.study.question import RowState
-from cape.study.question_plan import Plan, QuestionSettings, stage_runs
-from cape.study.question_state import commit
-from cape.study.sequential import (
+from cape.study.claims.declared import NMPCS
+from cape.study.question.looks import RowState
+from cape.study.question.plan import Plan, QuestionSettings, stage_runs
+from cape.study.question.state import commit
+from cape.study.stats.sequential import (
     CONTRADICTED,
     EQUIVALENT,
     FUTILE,

@@ -7,7 +7,7 @@ characters on one line: papermill writes it into the cell it injects (tagged
 the page a user opens. The HTML copy keeps that cell, as it keeps all the code, with each long
 string replaced by a short line saying what it held. nbconvert runs
 :class:`ShortParameters` when the workflow converts a notebook
-(``--HTMLExporter.preprocessors=cape.study.notebook_html.ShortParameters``).
+(``--HTMLExporter.preprocessors=cape.study.reports.notebook_html.ShortParameters``).
 """
 
 from __future__ import annotations

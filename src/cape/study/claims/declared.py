@@ -1,4 +1,4 @@
-"""The claims of SPEC §10 as data: one declaration each, evaluated by cape.study.scorecard.
+"""The claims of SPEC §10 as data: one declaration each, evaluated by cape.study.claims.scorecard.
 
 A closed-loop claim names the runs it reads (``select``), the per-run value (``metric``, or
 ``FAILURES``), how a model's runs of one seed become one number (``per_seed``), the effect of

@@ -1,10 +1,11 @@
-"""Table 8: the claims of cape.study.claims evaluated on a scope's runs and tables (SPEC §10).
+"""Table 8: the claims of cape.study.claims.declared evaluated on a scope's runs and tables
+(SPEC §10).
 
-Each pairwise comparison is one row; its columns are ``cape.study.table8``'s. With two or more
-draws the row's verdict is about the model class (cape.study.verdicts); with one draw (the
-default target) it is about that draw's networks, and the table says so (``presented``). A point
-is inconclusive unless its row is exact. How effects are paired and what sits beside the
-verdict: docs/modules.md.
+Each pairwise comparison is one row; its columns are ``cape.study.claims.table8``'s. With two
+or more draws the row's verdict is about the model class (cape.study.stats.verdicts); with one
+draw (the default target) it is about that draw's networks, and the table says so
+(``presented``). A point is inconclusive unless its row is exact. How effects are paired and
+what sits beside the verdict: docs/modules.md.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import pandas as pd
 
 from cape.layout.names import PlantName, replicate_name
 from cape.specs.notebook import ScorecardSettings
-from cape.study.claims import (
+from cape.study.claims.declared import (
     BICYCLE,
     CLOSED_LOOP,
     FAILURES,
@@ -32,7 +33,7 @@ from cape.study.claims import (
     ModelClaim,
     Pair,
 )
-from cape.study.table8 import (
+from cape.study.claims.table8 import (
     NOT_RUN,
     ClaimRow,
     DrawResult,
@@ -41,7 +42,7 @@ from cape.study.table8 import (
     frame,
     verdict_column,
 )
-from cape.study.verdicts import (
+from cape.study.stats.verdicts import (
     CONTRADICTED,
     EQUIVALENT,
     HOLDS,
@@ -415,7 +416,7 @@ def evaluate_claims(
     context: Context | None = None,
     settings: Settings | None = None,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Table 8 (``cape.study.table8``) of ``claims`` on ``evidence``, and the closed-loop
+    """Table 8 (``cape.study.claims.table8``) of ``claims`` on ``evidence``, and the closed-loop
     rows' intervals per draw and pooled (figure 13: claim, comparison, scope, estimate, low,
     high, paper). With no run, each closed-loop claim is a ``not evaluated`` row giving
     ``evidence.absent`` (why there is none) as its reason."""
@@ -462,7 +463,7 @@ def evaluate_claims(
 
 def _adjusted(table: pd.DataFrame) -> pd.Series:
     """Each row's verdict adjusted for the false-discovery rate over its setting's rows
-    (Benjamini–Hochberg, cape.study.verdicts.fdr_verdicts); a row not evaluated stays so."""
+    (Benjamini–Hochberg, cape.study.stats.verdicts.fdr_verdicts); a row not evaluated stays so."""
     out = table["verdict"].copy()
     for _, rows in table.groupby("setting", sort=False):
         adjusted = fdr_verdicts(

@@ -5,7 +5,7 @@ each look a difference test (``holds`` or ``contradicted``) and an equivalence t
 ±margin (``equivalent``) share the looks, with boundaries from ``boundaries``. A row stops at its
 first decision and is ``inconclusive`` if undecided at the last look. The family's α is spent
 over the rows (Bonferroni) and over the looks. The tests in full: docs/modules.md; error rates:
-``cape.study.sequential_calibration`` and docs/question.md.
+``cape.study.stats.sequential_calibration`` and docs/question.md.
 """
 
 from __future__ import annotations
@@ -205,7 +205,7 @@ class Look:
     why: str = ""
     chance: float = math.nan
     spread: Any = None
-    """The row's draws × seeds structure at this look (``cape.study.question.Spread``)."""
+    """The row's draws × seeds structure at this look (``cape.study.question.looks.Spread``)."""
 
 
 def look(

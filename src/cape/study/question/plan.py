@@ -1,7 +1,7 @@
 """The ground-truth question's plan (SPEC §10, revision 6): its settings, rows, and which runs a
 stage needs. Light on purpose: the workflow imports it whenever Snakemake reads the Snakefile
 (the ``question`` target), so it imports neither pandas nor SciPy; what a look decides is
-``cape.study.question``'s.
+``cape.study.question.looks``'s.
 """
 
 from __future__ import annotations
@@ -15,13 +15,13 @@ from cape.config import schema_default
 from cape.errors import CapeError
 from cape.layout.names import NMPCS, TRUTH
 from cape.layout.runs import RunId
-from cape.models.draws import default_max_trainings
 from cape.specs.question import QuestionSpec, check_rule
 from cape.specs.study import StudySpec, draw_seeds
+from cape.training.draws import default_max_trainings
 
 if TYPE_CHECKING:
-    from cape.study.claims import ClosedLoopClaim, Pair
-    from cape.study.sequential import Design
+    from cape.study.claims.declared import ClosedLoopClaim, Pair
+    from cape.study.stats.sequential import Design
 
 
 @dataclass(frozen=True)
@@ -115,14 +115,14 @@ class QuestionSettings:
         return draw_seeds(replicate, count, self.seed_stride)
 
     def claims(self) -> tuple[ClosedLoopClaim, ...]:
-        from cape.study.claims import question_claims
+        from cape.study.claims.declared import question_claims
 
         return question_claims(self.models)
 
     def rows(self) -> list[Row]:
         """Every (claim, pair), with its metric's margin; a relative margin m % becomes
         100·ln(1 + m/100) on the log-ratio scale (a/b within [1/(1 + m), 1 + m])."""
-        from cape.study.claims import LOG_RATIO
+        from cape.study.claims.declared import LOG_RATIO
 
         rows = []
         for claim in self.claims():
@@ -133,7 +133,7 @@ class QuestionSettings:
         return rows
 
     def design(self) -> Design:
-        from cape.study.sequential import Design
+        from cape.study.stats.sequential import Design
 
         return Design(self.stages, len(self.rows()), self.alpha, self.spending, self.futility)
 
@@ -261,7 +261,7 @@ def run_overrides(study: StudySpec, settings: QuestionSettings, plan: Plan) -> d
     most = max(replicates, *plan.draws.values())
     # one cap of trainings per model for every stage, the last stage's (2R by default, or the
     # fixed cap grown in proportion): a draw's cap never changes between stages, so no stage
-    # redoes a draw another made (cape.models.draws.deciding_cap)
+    # redoes a draw another made (cape.training.draws.deciding_cap)
     cap = study.max_trainings
     last = max(most, settings.stages[-1])
     cap = (

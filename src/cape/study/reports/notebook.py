@@ -24,7 +24,7 @@ from cape.plots.style import PNG_DPI, save_figure
 from cape.specs.notebook import NotebookSpec
 from cape.specs.study import StudySpec
 from cape.storage.tables import number_formats, to_html, to_markdown, write_table
-from cape.study.outputs import declared
+from cape.study.reports.outputs import declared
 
 SCREEN_DPI = 100
 """CSS pixels per figure inch at which a notebook shows a figure: matplotlib's own screen
@@ -105,12 +105,12 @@ def series_of(runs: pd.DataFrame, series_paths: str = "") -> dict[tuple[str, str
 
 
 def _declared(stem: str) -> None:
-    """A figure or table must be declared in cape.study.outputs (what the rules build)."""
+    """A figure or table must be declared in cape.study.reports.outputs (what the rules build)."""
     name = Path(stem).name
     if not declared(name):
         raise CapeError(
-            f"{name}: not declared in cape/study/outputs.py; add it to its notebook's entry "
-            "there, so that the workflow knows the file"
+            f"{name}: not declared in cape/study/reports/outputs.py; add it to its notebook's "
+            "entry there, so that the workflow knows the file"
         )
 
 

@@ -2,7 +2,7 @@
 
 A training that fails the checks (settings in ``training.health``: finite numbers, the bar of
 SPEC §4.2 for DDM and EPM, a stalled loss) is kept with its reasons and replaced by the model's
-next training seed (``cape.models.draws``). An outlier among draws is checked beside them, never a
+next training seed (``cape.training.draws``). An outlier among draws is checked beside them, never a
 reason to retrain. The checks in full: docs/modules.md.
 """
 
@@ -15,10 +15,8 @@ import numpy as np
 import pandas as pd
 
 from cape.errors import CapeError
-from cape.models.draws import Outcome
 from cape.specs.training import HealthSettings
-
-STATES = ("vx", "vy", "omega")
+from cape.training.outcome import STATES, Outcome, reliability
 
 
 def training_checks(
@@ -106,7 +104,7 @@ def training_outcome(
     settings: HealthSettings,
     weights_sha256: str,
 ) -> Outcome:
-    """One training's health record (cape.models.draws): the checks on the training alone,
+    """One training's health record (cape.training.draws): the checks on the training alone,
     the bar and the stalled loss; the outlier check compares draws and is not one of them."""
     reasons = training_checks(model, val_rmse, train_loss, settings)
     rmse = {s: float(val_rmse[s]) for s in STATES}
@@ -189,8 +187,6 @@ def reliability_table(
     interval, trained draws against ``draws`` (and whether the cap was reached), and how many
     trainings would pass the ETHZ validation bar scaled by each of ``factors`` (the bar
     applies to the models ``settings.models`` names; others: empty)."""
-    from cape.models.draws import reliability
-
     rows = []
     for model, group in trainings.groupby("model", sort=False):
         outcomes = [

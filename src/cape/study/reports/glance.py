@@ -13,10 +13,10 @@ import pandas as pd
 
 from cape.layout import paths
 from cape.storage.tables import number_formats, to_markdown
-from cape.study.claims import GROUND_TRUTH
-from cape.study.scorecard import NOT_EVALUATED, draws_of, holds_for_every_network, presented
-from cape.study.tables import plant_failures
-from cape.study.verdicts import CONTRADICTED, EQUIVALENT, HOLDS, INCONCLUSIVE
+from cape.study.claims.declared import GROUND_TRUTH
+from cape.study.claims.scorecard import NOT_EVALUATED, draws_of, holds_for_every_network, presented
+from cape.study.reports.tables import plant_failures
+from cape.study.stats.verdicts import CONTRADICTED, EQUIVALENT, HOLDS, INCONCLUSIVE
 
 REPLICATES_COMMAND = "snakemake --cores 2 replicates"
 
@@ -112,8 +112,8 @@ def at_a_glance(
 ) -> str:
     """The page: the verdicts (over the draws, or for this one draw), what ran, the trainings
     that failed, the laps without disturbances with the cause of every miss (``at_rest``:
-    ``cape.study.undisturbed.undisturbed``), table 9 (``leaderboard``), each model's recipe
-    reliability (``reliability``: cape.models.health.reliability_table) and every row of table
+    ``cape.study.reports.undisturbed.undisturbed``), table 9 (``leaderboard``), each model's recipe
+    reliability (``reliability``: cape.training.health.reliability_table) and every row of table
     8 as presented."""
     several = len(draws_of(table)) > 1
     scope = "over the training draws" if several else "for this training draw"

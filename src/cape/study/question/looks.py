@@ -2,10 +2,10 @@
 which models get more draws, and which runs a stage needs.
 
 Rows: every pair of ``question.models`` on the five closed-loop metrics of
-``cape.study.claims.question_claims``. Stage k gives every model of a row still open
-``stages[k]`` trained draws; each row is decided by ``cape.study.sequential`` at the look of its
-draws. ``cape question`` (cape/cli/question.py) drives Snakemake through the stages; this module
-is the part of it that needs no Snakemake. Details: docs/modules.md.
+``cape.study.claims.declared.question_claims``. Stage k gives every model of a row still open
+``stages[k]`` trained draws; each row is decided by ``cape.study.stats.sequential`` at the look
+of its draws. ``cape question`` drives the stages through ``cape.study.question.run``; this
+module is what a look decides. Details: docs/modules.md.
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from cape.study.question_plan import Row
-from cape.study.scorecard import pair_effects, per_seed
-from cape.study.sequential import (
+from cape.study.claims.scorecard import pair_effects, per_seed
+from cape.study.question.plan import Row
+from cape.study.stats.sequential import (
     FUTILE,
     INCONCLUSIVE,
     OPEN,
@@ -231,7 +231,7 @@ def payoff(
     ``most``, the number that settles most open rows at the next look per CPU-second of the
     draws it buys (each model's ``draw_cost`` and ``seed_cost`` per seed's runs). Returns it,
     and per open row its spread and its chance of settling at the next look on that many."""
-    from cape.study.sequential import payoff_seeds
+    from cape.study.stats.sequential import payoff_seeds
 
     n, ahead = design.looks[stage], stage + 1
     models = sorted({m for s in states if not s.done for m in s.row.models})

@@ -82,9 +82,9 @@ class ScorecardData:
         """The bundle of a results tree: ``job`` the notebook's spec (cape.specs.notebook),
         ``runs`` the scope's runs.parquet, and the notebook's other parameters."""
         from cape.closedloop.setup import load_reference
+        from cape.study.claims.leaderboard import recipe
         from cape.study.inputs import read_draws, read_replicate_tables
-        from cape.study.leaderboard import recipe
-        from cape.study.notebook import nothing_here
+        from cape.study.reports.notebook import nothing_here
 
         complexity = read_replicate_tables(replicates, complexity_paths, model_root)
         openloop = read_replicate_tables(replicates, openloop_paths, model_root)
@@ -207,20 +207,20 @@ TRUTH_TITLE = "the ground-truth plant (the simulated true car)"
 
 
 def compute(data: ScorecardData) -> Scorecard:
-    """Tables 8 and 9 of ``data`` (cape.study.scorecard, cape.study.leaderboard)."""
-    from cape.models.health import (
+    """Tables 8 and 9 of ``data`` (cape.study.claims.scorecard, cape.study.claims.leaderboard)."""
+    from cape.study.aggregate import summarise
+    from cape.study.claims.declared import Context
+    from cape.study.claims.leaderboard import leaderboard
+    from cape.study.claims.scorecard import Evidence, evaluate_claims
+    from cape.study.reports.notebook import nothing_table
+    from cape.study.reports.tables import best_controller
+    from cape.training.health import (
         draw_cap,
         draw_health,
         failed_draws,
         reliability_table,
         trainings_tried,
     )
-    from cape.study.aggregate import summarise
-    from cape.study.claims import Context
-    from cape.study.leaderboard import leaderboard
-    from cape.study.notebook import nothing_table
-    from cape.study.scorecard import Evidence, evaluate_claims
-    from cape.study.tables import best_controller
 
     about, runs = data.about, data.runs
     health = draw_health(data.metas, float(about.health["outlier_factor"]))

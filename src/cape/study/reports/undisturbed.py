@@ -3,7 +3,7 @@ where it did not.
 
 At η = 0 every disturbance source is off (SPEC §6), so a failure there is the controller's or
 the plant's alone. Each failed cell is given its measured cause: a failed training (SPEC §4,
-``cape.models.health``), or how far the car slid before it left the track, beside the
+``cape.training.health``), or how far the car slid before it left the track, beside the
 ground-truth car under the same controller (the project's control experiment). A learned plant
 that lets the car slide far past anything the true car does is a learned model outside its
 data, not a controller's fault (docs/closed-loop.md, "the feedback laws at η = 0").

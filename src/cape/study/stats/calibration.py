@@ -5,7 +5,7 @@ with spread ``σ_between`` (in units of the seeds' spread ``σ_within`` = 1: ``r
 of a draw's seeds around its draw's effect with ``σ_within``. With no true effect, the rate at
 which a method's 95 % interval excludes zero is its false-verdict rate; with one, the rate at
 which it excludes zero is its power. ``t_over_draws`` is the scorecard's method
-(``cape.study.verdicts.t_interval`` over the draws' means, as ``interval`` computes it).
+(``cape.study.stats.verdicts.t_interval`` over the draws' means, as ``interval`` computes it).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from cape.study.verdicts import t_interval
+from cape.study.stats.verdicts import t_interval
 
 Method = Callable[[np.ndarray, float, np.random.Generator], tuple[np.ndarray, np.ndarray]]
 """(trials × draws × seeds effects, level, generator) → each trial's interval (low, high)."""
@@ -71,7 +71,7 @@ def fdr_family(
     share of decided rows that are null or on the wrong side), the same share without the
     adjustment, and the adjusted verdicts' power (the share of true effects decided the right
     way). The p-values are the scorecard's own (``t_test`` over the draws' means)."""
-    from cape.study.verdicts import CONTRADICTED, HOLDS, INCONCLUSIVE, fdr_verdicts, t_test
+    from cape.study.stats.verdicts import CONTRADICTED, HOLDS, INCONCLUSIVE, fdr_verdicts, t_test
 
     rng = np.random.default_rng(seed)
     truth = np.zeros(rows)
@@ -105,12 +105,13 @@ def replaced_failures(
 ) -> tuple[float, float]:
     """A model with no true effect whose trainings fail with probability ``fail``: a failed
     network's effect is off by ``failed_shift`` σ_between (it drives differently). Per trial
-    its trainings are tried in seed order up to ``cap_factor`` × ``draws`` (cape.models.draws),
+    its trainings are tried in seed order up to ``cap_factor`` × ``draws`` (cape.training.draws),
     and the verdict is the scorecard's: ``class_interval`` and ``verdict`` over the trained
     draws (inconclusive with fewer than two). Returns the false-verdict rate over the trained draws
     and, for comparison, over the first ``draws`` trainings with the failed ones kept."""
-    from cape.models.draws import Outcome, choose_training
-    from cape.study.verdicts import INCONCLUSIVE, class_interval, interval, verdict
+    from cape.study.stats.verdicts import INCONCLUSIVE, class_interval, interval, verdict
+    from cape.training.draws import choose_training
+    from cape.training.outcome import Outcome
 
     rng = np.random.default_rng(seed)
     cap = cap_factor * draws

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from cape.study.claims import FAILURES, NMPCS, Selection, at_eta, both, controllers
-from cape.study.verdicts import (
+from cape.study.claims.declared import FAILURES, NMPCS, Selection, at_eta, both, controllers
+from cape.study.stats.verdicts import (
     EQUIVALENT,
     INCONCLUSIVE,
     POINT,
@@ -193,7 +193,7 @@ def leaderboard(
     about): one row per model of ``models`` that has runs, ranked by ``primary`` over the
     draws that trained (``failed``: the draws left out); see the module docstring.
     ``reference``: the model the effects are taken against; ``reliability``: per model, the
-    trainings tried and the failure rate (cape.models.health.reliability_table). A model with
+    trainings tried and the failure rate (cape.training.health.reliability_table). A model with
     no value of the primary metric is ``not evaluated`` and unranked; without the reference's
     runs every row says so."""
     runs = runs if "replicate" in runs else runs.assign(replicate=0)

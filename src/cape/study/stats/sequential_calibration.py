@@ -5,8 +5,8 @@ A simulated question has rows (two models each) whose per-(draw, seed) effects f
 with a true effect, a spread between draws σ_b and within a draw σ_w. ``nested`` seeds give
 every draw seeds of its own; ``crossed`` seeds (the design before revision 7) give every draw
 the same seeds, whose effects a share of σ²_w carries for all draws alike. The procedure is
-``cape.study.sequential``'s own rule (``decide``, ``settle_chance``, ``payoff_seeds``), stage by
-stage: models buy the next look's draws only while one of their rows is open (and, with
+``cape.study.stats.sequential``'s own rule (``decide``, ``settle_chance``, ``payoff_seeds``),
+stage by stage: models buy the next look's draws only while one of their rows is open (and, with
 futility, not futile). ``simulate`` returns each row's decision, the draws it used, the CPU spent
 and the seeds chosen. The laws in full: docs/modules.md; the tables: docs/question.md; the
 acceptance: tests/test_sequential.py and tests/test_calibration_laws.py.
@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cape.study.sequential import (
+from cape.study.stats.sequential import (
     CONTRADICTED,
     EQUIVALENT,
     FUTILE,

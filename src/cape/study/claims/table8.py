@@ -18,7 +18,7 @@ from typing import Any
 import pandas as pd
 
 from cape.layout.names import replicate_name
-from cape.study.claims import PAPER_SETTING
+from cape.study.claims.declared import PAPER_SETTING
 
 NOT_RUN = "not run"
 """A draw's verdict on a row measured in replicate 0 only (the bicycle study)."""

@@ -2,10 +2,11 @@
 study").
 
 ``publish`` copies a scope's RESULTS.md, tables 8 and 9, figures 13 and 14 and its evidence
-folder (cape.study.scorecard_data) into a folder and adds ``provenance.json``: the commit, the
-config's digest, the machine, each model's draws with their training and disturbance seeds,
-the trainings tried and failed, and the CPU of each stage. ``rederive`` recomputes tables 8
-and 9 from the folder's evidence alone and ``differences`` compares them with its tables.
+folder (cape.study.reports.scorecard_data) into a folder and adds ``provenance.json``: the
+commit, the config's digest, the machine, each model's draws with their training and
+disturbance seeds, the trainings tried and failed, and the CPU of each stage. ``rederive``
+recomputes tables 8 and 9 from the folder's evidence alone and ``differences`` compares them
+with its tables.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import pandas as pd
 from cape.errors import CapeError
 from cape.layout import paths
 from cape.storage.io import read_csv, write_text
-from cape.study.scorecard_data import (
+from cape.study.reports.scorecard_data import (
     NUMERIC_TOLERANCE,
     ScorecardData,
     compute,
@@ -65,7 +66,7 @@ def publish(scope: str, folder: Path, config: Mapping[str, Any]) -> list[str]:
 
 def rederive(folder: Path) -> dict[str, pd.DataFrame]:
     """Tables 8 and 9 (as the notebook saves them) from ``folder``'s evidence alone."""
-    from cape.study.scorecard import presented
+    from cape.study.claims.scorecard import presented
 
     card = compute(ScorecardData.read(folder / "evidence"))
     return {TABLES[0]: presented(card.table8), TABLES[1]: card.table9}
@@ -87,8 +88,8 @@ def provenance(config: Mapping[str, Any], data: ScorecardData, scope: str) -> di
     """What made the published tables: commit, config digest, machine, each model's draws with
     their training seeds (failed ones too) and disturbance seeds, and each stage's CPU."""
     from cape.specs.study import StudySpec
-    from cape.study.question_publish import config_digest, draw_record, machine
-    from cape.study.question_state import commit
+    from cape.study.question.publish import config_digest, draw_record, machine
+    from cape.study.question.state import commit
 
     study = StudySpec.from_config(config)
     draws: dict[str, list[dict[str, Any]]] = {}
@@ -117,11 +118,11 @@ def tried(draws: list[dict[str, Any]]) -> dict[int, bool]:
 
 def stage_costs(data: ScorecardData, scope: str) -> dict[str, dict[str, Any]]:
     """CPU seconds per stage of the scope's study, from the rules' records: the trainings
-    tried (cape.study.question_report.training_cpu), the solver builds and the rollouts (each
+    tried (cape.study.question.report.training_cpu), the solver builds and the rollouts (each
     run's timing.json), with the files not found counted."""
     from cape.layout.names import replicate_name
     from cape.layout.record import read_timing
-    from cape.study.question_report import _cpu, training_cpu
+    from cape.study.question.report import _cpu, training_cpu
 
     trainings = [0.0, 0, 0]
     seen = set()
@@ -144,7 +145,7 @@ def stage_costs(data: ScorecardData, scope: str) -> dict[str, dict[str, Any]]:
     rollouts = [0.0, 0, 0]
     runs = pd.read_parquet(paths.study_runs(scope)) if Path(paths.study_runs(scope)).is_file() \
         else pd.DataFrame()  # fmt: skip
-    from cape.study.notebook import run_dir
+    from cape.study.reports.notebook import run_dir
 
     for row in runs.to_dict("records"):
         try:

@@ -9,9 +9,9 @@ import pandas as pd
 
 from cape.data.windows import make_windows, split_indices
 from cape.models.base import LearnedModel
-from cape.models.evaluate import STATE_NAMES, complexity_row, multistep_error, one_step_rmse
 from cape.paper import COMPLEXITY, OPENLOOP_RMSE
 from cape.specs.training import Split
+from cape.training.evaluate import STATE_NAMES, complexity_row, multistep_error, one_step_rmse
 
 
 def openloop_table(

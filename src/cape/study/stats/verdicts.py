@@ -56,7 +56,7 @@ class Interval:
 class UnusableEffectsError(CapeError, ValueError):
     """Effects no interval can summarise: a value that is infinite, or values so large that
     their mean, spread or interval overflows (1e308 and −1e308: a mean of 0 inside ±inf).
-    Screen such values first (a broken run: cape.study.leaderboard does); a ``CapeError``, so
+    Screen such values first (a broken run: cape.study.claims.leaderboard does); a ``CapeError``, so
     that a command that meets one says it in one line."""
 
 
@@ -100,7 +100,8 @@ def draw_effects(effects: Mapping[int, Sequence[float]]) -> dict[int, float]:
 def t_interval(x: np.ndarray, level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
     """Student's t interval of the mean along the last axis of ``x`` (n − 1 degrees of
     freedom), by ``scipy.stats.ttest_1samp``: one interval per row, so that the calibration
-    (cape.study.calibration) runs the very computation ``interval`` does on thousands of trials."""
+    (cape.study.stats.calibration) runs the very computation ``interval`` does on thousands of
+    trials."""
     ci = stats.ttest_1samp(x, 0.0, axis=-1).confidence_interval(confidence_level=level)
     return np.asarray(ci.low), np.asarray(ci.high)
 

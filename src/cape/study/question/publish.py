@@ -15,17 +15,17 @@ import json
 import math
 import os
 import platform
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
 from cape.errors import CapeError
-from cape.study.question import RowState, evaluate, values_from_frame
-from cape.study.question_plan import QuestionSettings
-from cape.study.question_report import draw_meta, looks_frame
-from cape.study.question_state import QuestionState, commit
+from cape.study.question.looks import RowState, evaluate, values_from_frame
+from cape.study.question.plan import QuestionSettings
+from cape.study.question.report import draw_meta, looks_frame
+from cape.study.question.state import QuestionState, commit
 
 COPIED = ("RESULTS.md", "looks.csv", "looks.json", "values.csv", "variance_components.csv")
 """What a published question copies from results/question/ (the same names in the folder)."""
@@ -40,7 +40,7 @@ def draw(folder: Path) -> None:
     from cape.plots.question import question_looks
     from cape.plots.style import PNG_DPI, save_figure
     from cape.storage.tables import number_formats, write_table
-    from cape.study.question_report import final_rows
+    from cape.study.question.report import final_rows
 
     looks = pd.read_csv(folder / "looks.csv")
     (folder / "figures").mkdir(parents=True, exist_ok=True)
@@ -275,7 +275,7 @@ class Published:
     values of it on exactly the seeds the plan gives it."""
 
     def __init__(self, folder: Path, design: Mapping[str, Any]) -> None:
-        from cape.study.question_state import design_change
+        from cape.study.question.state import design_change
 
         self.folder = folder
         self.state, values, _ = read_folder(folder)
@@ -308,3 +308,32 @@ class Published:
     def stage(self, k: int) -> dict[str, Any] | None:
         """The published record of stage ``k`` (0-based), if it has one."""
         return self.state.looks[k] if k < len(self.state.looks) else None
+
+    def reused(self, settings: Any, draws: Mapping[str, int], seeds: Sequence[int]) -> frozenset:
+        """The stage's draws whose values this question holds on their planned seeds."""
+        claims = sorted({row.name for row in settings.rows()})
+        return frozenset(
+            (m, r)
+            for m, d in draws.items()
+            for r in range(d)
+            if self.covers(m, r, settings.draw_seeds(r, seeds[r]), claims)
+        )
+
+    def as_published(self, line: dict[str, Any], plan: Any, k: int) -> dict[str, Any]:
+        """Stage ``k``'s line; where every draw of the stage was reused, its CPU, wall time and
+        trainings are the published stage's (nothing ran here to measure them)."""
+        every = {(m, r) for m, d in plan.draws.items() for r in range(d)}
+        earlier = self.stage(k)
+        if earlier is None or not every or not every <= plan.reused:
+            return line
+        keep = ("cpu_s", "wall_s", "trainings tried", "trainings failed", "cpu by model", "runs_s")
+        return {**line, **{key: earlier[key] for key in keep if key in earlier}, "reused": True}
+
+    def most(self, plan: Any, k: int, measured: int) -> int:
+        """The most seeds futility assumes at stage ``k``: the published stage's where all its
+        draws were reused (its costs were measured there, not here), else ``measured``."""
+        earlier = self.stage(k)
+        every = {(m, r) for m, d in plan.draws.items() for r in range(d)}
+        if earlier is not None and every <= plan.reused and earlier.get("most seeds") is not None:
+            return int(earlier["most seeds"])
+        return measured

@@ -1,0 +1,2 @@
+"""The study's statistics (SPEC §10): verdicts from intervals over training draws, the
+group-sequential test, and how often each errs (their calibration)."""
