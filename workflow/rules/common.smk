@@ -14,7 +14,7 @@ from cape.layout import paths
 from cape.workflow.job_files import JobFiles
 from cape.workflow.notebooks import DECLARED, TABLE_EXTS, run_notebook
 from cape.workflow.runs import RUN_FOLDER, RUN_LOG, RUN_STEM
-from cape.workflow.start import prepare, refusals
+from cape.workflow.start import Refusing, prepare, refusals
 from cape.workflow.targets import StudyWorkflow
 
 with refusals():  # a bad config value: its one-line reason, no traceback
@@ -25,7 +25,7 @@ with refusals():  # a bad config value: its one-line reason, no traceback
         outputs=lambda rule, **wildcards: [str(p).format(**wildcards) for p in getattr(rules, rule).output],
         health=lambda model, seed: checkpoints.training_health.get(model=model, training_seed=seed).output[0],
     )
-    JOBS = JobFiles(config)
+    JOBS = Refusing(JobFiles(config))  # a job file refused: its one line, not frames
 TRACKS, TRAININGS, RUNS, NOTEBOOKS, QUESTION = W.tracks, W.trainings, W.runs, W.notebooks, W.question
 SCOPES = NOTEBOOKS.scopes
 CAPE_ENV = "../envs/cape.yaml"  # every rule's software environment for `--sdm conda`

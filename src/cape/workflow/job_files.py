@@ -36,18 +36,9 @@ Config = Mapping[str, Any]
 def write_job_file(job: str, text: str) -> str:
     """Write ``job``'s file of content ``text`` once (atomically) if absent; its path.
 
-    Snakemake asks for it while it plans (a rule's params), so a dry run writes it too. A
-    refusal (a file at its path the workflow did not write, a folder that cannot be written) is
-    its one line on stderr and exit status 1 (``start.refusals``): Snakemake would wrap a
-    ``CapeError`` in an InputFunctionException with its stack frames, but lets a ``SystemExit``
-    through and stops (it plans before it locks the folder or starts a job)."""
-    from cape.workflow.start import refusals
-
-    with refusals():
-        return _write_job_file(job, text)
-
-
-def _write_job_file(job: str, text: str) -> str:
+    Snakemake asks for it while it plans (a rule's params), so a dry run writes it too;
+    ``CapeError`` in one line when it cannot be written (the rules reach it through
+    ``start.Refusing``, which makes that its one line on stderr, not Snakemake's frames)."""
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
     path = Path(paths.SPEC.format(job=job, digest=digest))
     try:

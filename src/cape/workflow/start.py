@@ -62,3 +62,24 @@ def refusals() -> Iterator[None]:
     except CapeError as error:
         print(f"error: {one_line(str(error))}", file=sys.stderr)  # as `cape` says it
         raise SystemExit(1) from None
+
+
+class Refusing:
+    """``target``'s methods, each called inside ``refusals``: what a rule's params call while
+    Snakemake plans (the job files), whose ``CapeError`` Snakemake would wrap in an
+    InputFunctionException with its stack frames; a ``SystemExit`` it lets through and stops
+    (it plans before it locks the folder or starts a job)."""
+
+    def __init__(self, target: object) -> None:
+        self._target = target
+
+    def __getattr__(self, name: str) -> Any:
+        method = getattr(self._target, name)
+        if not callable(method):
+            return method
+
+        def refusing(*args: Any, **kwargs: Any) -> Any:
+            with refusals():
+                return method(*args, **kwargs)
+
+        return refusing

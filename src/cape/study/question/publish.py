@@ -137,10 +137,10 @@ def provenance(config: Mapping[str, Any], state: QuestionState) -> dict[str, Any
 
 def trainings_cpu(draws: Mapping[str, list[dict[str, Any]]]) -> dict[str, float | None]:
     """Per model, the CPU seconds of every training its draws were chosen among, each over all
-    its parts (``question_report.training_cpu``): a stage line recorded before CAPE counted a
+    its parts (``report.training_cpu``): a stage line recorded before CAPE counted a
     resumed training's every part holds only its last; None where a record is missing."""
     from cape.layout import paths
-    from cape.study.question_report import training_cpu
+    from cape.study.question.report import training_cpu
 
     out: dict[str, float | None] = {}
     for model, records in draws.items():
